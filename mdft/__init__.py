@@ -1,0 +1,21 @@
+"""pymdft's MDFT engine: Multi-alternative Decision Field Theory, compiled with numba.
+
+The engine is standalone: it knows nothing of MDPs or of the orchestration
+built on it. See ``docs/concepts.md`` for the equations and conventions.
+"""
+
+from .model import (
+    MDFTModel,
+    UnstableFeedbackWarning,
+    contrast_matrix,
+    distance_matrix,
+    feedback_matrix,
+)
+
+__all__ = [
+    "MDFTModel",
+    "UnstableFeedbackWarning",
+    "contrast_matrix",
+    "distance_matrix",
+    "feedback_matrix",
+]

@@ -1,0 +1,101 @@
+"""Input checks shared by the public layer of :mod:`mdft`.
+
+Every check raises ``ValueError`` or ``TypeError`` with a message that names the
+parameter, says what was received and what is required. Nothing invalid
+reaches a compiled kernel.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+
+def _describe(x) -> str:
+    arr = np.asarray(x)
+    if arr.ndim == 0:
+        return repr(arr.item()) if arr.dtype != object else repr(x)
+    return f"an array of shape {arr.shape}"
+
+
+def as_float_array(name: str, value, *, ndim: int | None = None, shape=None) -> np.ndarray:
+    """Return ``value`` as a new C-contiguous float64 array, checked for shape and finiteness.
+
+    ``shape`` may hold ``None`` for a free dimension.
+    """
+    try:
+        arr = np.array(value, dtype=np.float64, order="C", copy=True)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be an array of real numbers (got {value!r})") from exc
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(
+            f"{name} must be a {ndim}-d array (got {arr.ndim}-d with shape {arr.shape})"
+        )
+    if shape is not None:
+        if arr.ndim != len(shape) or any(
+            want is not None and got != want for got, want in zip(arr.shape, shape)
+        ):
+            wanted = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{name} must have shape {wanted} (got {arr.shape})")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must contain only finite values (got NaN or infinity in {name})")
+    return arr
+
+
+def as_scalar(
+    name: str,
+    value,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_inclusive: bool = True,
+) -> float:
+    """Return ``value`` as a finite float within the given bounds."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
+        raise TypeError(f"{name} must be a real number (got {value!r})")
+    arr = np.asarray(value)
+    if arr.ndim != 0:
+        raise TypeError(f"{name} must be a scalar (got {_describe(value)})")
+    x = float(arr)
+    if not np.isfinite(x):
+        raise ValueError(f"{name} must be finite (got {x})")
+    if low is not None:
+        if low_inclusive and x < low:
+            raise ValueError(f"{name} must be >= {low} (got {x})")
+        if not low_inclusive and x <= low:
+            raise ValueError(f"{name} must be > {low} (got {x})")
+    if high is not None and x > high:
+        raise ValueError(f"{name} must be <= {high} (got {x})")
+    return x
+
+
+def as_count(name: str, value, *, low: int = 1) -> int:
+    """Return ``value`` as a Python int >= ``low``."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be an integer (got {value!r})")
+    n = int(value)
+    if n < low:
+        raise ValueError(f"{name} must be an integer >= {low} (got {n})")
+    return n
+
+
+def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -> np.ndarray:
+    """Check attention weights: shape (n_attributes,), non-negative, summing to one.
+
+    Returns a copy renormalised to sum to one exactly.
+    """
+    arr = as_float_array(name, w, ndim=1)
+    if arr.shape[0] != n_attributes:
+        raise ValueError(
+            f"{name} must have one weight per attribute, length {n_attributes} "
+            f"(got length {arr.shape[0]})"
+        )
+    if np.any(arr < 0):
+        raise ValueError(f"{name} must be non-negative (got {arr.tolist()})")
+    total = arr.sum()
+    if abs(total - 1.0) > atol:
+        raise ValueError(
+            f"{name} must sum to 1 (got {total:.6g}); pass normalised attention weights"
+        )
+    return arr / total

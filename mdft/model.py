@@ -1,0 +1,415 @@
+"""The MDFT model: evaluations, attention, contrast and feedback matrices.
+
+Conventions (Roe, Busemeyer & Townsend 2001; Hotaling, Busemeyer & Li 2010),
+stated once here and in ``docs/concepts.md``:
+
+* ``M[option, attribute]``: option ``i``'s evaluation on attribute ``j``.
+* ``w[attribute]``: attention weights; at each step exactly one attribute is
+  attended, attribute ``j`` with probability ``w[j]``.
+* ``C``: contrast, ``c_ii = 1``, ``c_ij = -1/(n-1)``.
+* Valence ``V(t) = C (M W(t) + eps(t))`` with ``eps(t) ~ N(0, sigma2 I)``.
+* Preference ``P(t+1) = S P(t) + V(t+1)``, ``P(0) = P0``.
+* Hotaling distance ``D_ij = |d|^2 + (beta - 1) (u.d)^2`` with ``d = M_i - M_j``
+  and ``u`` the unit vector along the dominance direction (all ones / sqrt(J)).
+* Feedback ``S = I - phi2 * exp(-phi1 * D**2)``.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ._validation import as_attention, as_float_array, as_scalar
+
+__all__ = [
+    "MDFTModel",
+    "UnstableFeedbackWarning",
+    "contrast_matrix",
+    "distance_matrix",
+    "feedback_matrix",
+]
+
+
+class UnstableFeedbackWarning(RuntimeWarning):
+    """The spectral radius of the feedback matrix ``S`` is 1 or more.
+
+    Preferences then need not settle: they can grow without bound as the
+    deliberation goes on.
+    """
+
+
+def contrast_matrix(n_options: int) -> np.ndarray:
+    """Return the MDFT contrast matrix ``C`` for ``n_options`` options.
+
+    Parameters
+    ----------
+    n_options : int
+        Number of options, at least 2.
+
+    Returns
+    -------
+    C : ndarray, shape (n_options, n_options)
+        ``C[i, i] = 1`` and ``C[i, j] = -1 / (n_options - 1)``: each option is
+        compared with the mean of its rivals. Every column sums to zero.
+
+    Examples
+    --------
+    >>> contrast_matrix(3)
+    array([[ 1. , -0.5, -0.5],
+           [-0.5,  1. , -0.5],
+           [-0.5, -0.5,  1. ]])
+    """
+    if isinstance(n_options, bool) or not isinstance(n_options, (int, np.integer)):
+        raise TypeError(f"n_options must be an integer (got {n_options!r})")
+    if n_options < 2:
+        raise ValueError(f"n_options must be >= 2 (got {n_options}); MDFT compares options")
+    C = np.full((n_options, n_options), -1.0 / (n_options - 1))
+    np.fill_diagonal(C, 1.0)
+    return C
+
+
+def distance_matrix(M, *, beta: float) -> np.ndarray:
+    """Return Hotaling's squared distance between every pair of options.
+
+    Parameters
+    ----------
+    M : array_like, shape (n_options, n_attributes)
+        Evaluations.
+    beta : float
+        Weight of the dominance dimension, ``beta >= 0``.
+
+    Returns
+    -------
+    D : ndarray, shape (n_options, n_options)
+        ``D[i, j] = |d|^2 + (beta - 1) (u.d)^2`` with ``d = M[i] - M[j]`` and
+        ``u = (1, ..., 1) / sqrt(n_attributes)``. For two attributes this is
+        ``dI**2 + beta * dD**2`` with the indifference and dominance
+        coordinates ``dI = (d2 - d1)/sqrt(2)`` and ``dD = (d1 + d2)/sqrt(2)``.
+
+    Examples
+    --------
+    >>> distance_matrix([[1.0, 3.0], [3.0, 1.0]], beta=12.0)
+    array([[0., 8.],
+           [8., 0.]])
+    """
+    M = as_float_array("M", M, ndim=2)
+    beta = as_scalar("beta", beta, low=0.0)
+    diff = M[:, None, :] - M[None, :, :]
+    along = diff.sum(axis=2) ** 2 / M.shape[1]
+    return (diff**2).sum(axis=2) + (beta - 1.0) * along
+
+
+def feedback_matrix(D, *, phi1: float, phi2: float) -> np.ndarray:
+    """Return the feedback matrix ``S = I - phi2 * exp(-phi1 * D**2)``.
+
+    Parameters
+    ----------
+    D : array_like, shape (n_options, n_options)
+        Squared distances (:func:`distance_matrix`).
+    phi1 : float
+        Sensitivity of lateral inhibition to distance, ``phi1 >= 0``.
+    phi2 : float
+        Strength of lateral inhibition and of decay, ``phi2 >= 0``; the diagonal
+        of ``S`` is ``1 - phi2``.
+
+    Returns
+    -------
+    S : ndarray, shape (n_options, n_options)
+        Symmetric feedback matrix.
+
+    Notes
+    -----
+    ``D`` already holds squared distances, so the exponent is quartic in the
+    attribute differences, as in Hotaling's and Busemeyer's code.
+    """
+    D = as_float_array("D", D, ndim=2)
+    phi1 = as_scalar("phi1", phi1, low=0.0)
+    phi2 = as_scalar("phi2", phi2, low=0.0)
+    return np.eye(D.shape[0]) - phi2 * np.exp(-phi1 * D**2)
+
+
+class MDFTModel:
+    """A Multi-alternative Decision Field Theory model.
+
+    Parameters
+    ----------
+    M : array_like, shape (n_options, n_attributes)
+        Evaluations ``M[option, attribute]``; at least 2 options and 1 attribute.
+    w : array_like, shape (n_attributes,)
+        Attention weights: non-negative, summing to one.
+    phi1 : float
+        Sensitivity of lateral inhibition to distance (``S`` equation), >= 0.
+    phi2 : float
+        Strength of lateral inhibition (``S`` equation), >= 0.
+    beta : float
+        Weight of the dominance dimension in Hotaling's distance, >= 0.
+    sigma2 : float, default 1.0
+        Variance of the valence noise ``eps(t) ~ N(0, sigma2 I)``, >= 0.
+    P0 : array_like, shape (n_options,), optional
+        Initial preference ``P(0)``; zero by default.
+
+    Attributes
+    ----------
+    M, w, C, D, S, P0 : ndarray
+        Read-only arrays. ``D`` is ``None`` for a model built with
+        :meth:`from_matrices`.
+    sigma2, phi1, phi2, beta : float
+        Parameters (``phi1``, ``phi2``, ``beta`` are ``None`` for a model built
+        from matrices).
+    spectral_radius : float
+        ``max |eig(S)|``. Preferences stay bounded in expectation only if it is
+        below 1; an :class:`UnstableFeedbackWarning` is issued otherwise.
+
+    Notes
+    -----
+    The dynamics is ``P(t+1) = S P(t) + C (M W(t+1) + eps(t+1))``, where
+    ``W(t)`` is the unit vector of the attribute attended at step ``t``.
+
+    Examples
+    --------
+    The binary choice between A = (1, 3) and B = (3, 1) with the canonical
+    parameters:
+
+    >>> model = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+    ...                   phi1=0.022, phi2=0.05, beta=12.0)
+    >>> model.n_options, model.n_attributes
+    (2, 2)
+    >>> round(model.spectral_radius, 4)
+    0.9622
+    >>> model.C.sum(axis=0)
+    array([0., 0.])
+
+    Adding the compromise C = (2, 2) makes ``S`` slightly expansive (its
+    spectral radius is about 1.009): lateral inhibition between close options
+    is what produces the compromise effect.
+    """
+
+    __slots__ = (
+        "_M",
+        "_w",
+        "_C",
+        "_D",
+        "_S",
+        "_P0",
+        "_sigma2",
+        "_phi1",
+        "_phi2",
+        "_beta",
+        "_standard_contrast",
+        "_spectral_radius",
+    )
+
+    def __init__(self, M, w, *, phi1, phi2, beta, sigma2=1.0, P0=None):
+        M = as_float_array("M", M, ndim=2)
+        _check_option_count(M)
+        phi1 = as_scalar("phi1", phi1, low=0.0)
+        phi2 = as_scalar("phi2", phi2, low=0.0)
+        beta = as_scalar("beta", beta, low=0.0)
+        D = distance_matrix(M, beta=beta)
+        S = feedback_matrix(D, phi1=phi1, phi2=phi2)
+        self._init(M, w, contrast_matrix(M.shape[0]), S, sigma2, P0, standard_contrast=True)
+        self._D = _readonly(D)
+        self._phi1, self._phi2, self._beta = phi1, phi2, beta
+
+    @classmethod
+    def from_matrices(cls, M, w, *, S, C=None, sigma2=1.0, P0=None) -> "MDFTModel":
+        """Build a model from an explicit feedback matrix ``S`` (and contrast ``C``).
+
+        Parameters
+        ----------
+        M : array_like, shape (n_options, n_attributes)
+        w : array_like, shape (n_attributes,)
+        S : array_like, shape (n_options, n_options)
+            Feedback matrix. Need not be symmetric.
+        C : array_like, shape (n_options, n_options), optional
+            Contrast matrix; the standard one (:func:`contrast_matrix`) by default.
+        sigma2 : float, default 1.0
+        P0 : array_like, shape (n_options,), optional
+
+        Examples
+        --------
+        >>> m = MDFTModel.from_matrices([[1.0], [0.0]], [1.0], S=[[1, 0], [0, 1]])
+        >>> m.spectral_radius
+        1.0
+        """
+        M = as_float_array("M", M, ndim=2)
+        _check_option_count(M)
+        n = M.shape[0]
+        S = as_float_array("S", S, shape=(n, n))
+        standard = C is None
+        C = contrast_matrix(n) if standard else as_float_array("C", C, shape=(n, n))
+        self = cls.__new__(cls)
+        self._init(M, w, C, S, sigma2, P0, standard_contrast=standard)
+        self._D = None
+        self._phi1 = self._phi2 = self._beta = None
+        return self
+
+    def _init(self, M, w, C, S, sigma2, P0, *, standard_contrast):
+        n, J = M.shape
+        self._M = _readonly(M)
+        self._w = _readonly(as_attention(w, J))
+        self._C = _readonly(C)
+        self._S = _readonly(S)
+        self._sigma2 = as_scalar("sigma2", sigma2, low=0.0)
+        P0 = np.zeros(n) if P0 is None else as_float_array("P0", P0, shape=(n,))
+        self._P0 = _readonly(P0)
+        self._standard_contrast = standard_contrast
+        self._spectral_radius = float(np.max(np.abs(np.linalg.eigvals(S))))
+        if self._spectral_radius >= 1.0:
+            warnings.warn(
+                f"the feedback matrix S has spectral radius {self._spectral_radius:.6g} >= 1: "
+                "preferences can grow without bound; lower phi2 or raise phi1 for a stable model",
+                UnstableFeedbackWarning,
+                stacklevel=3,
+            )
+
+    # ------------------------------------------------------------------ accessors
+    M = property(lambda self: self._M, doc="Evaluations, shape (n_options, n_attributes).")
+    w = property(lambda self: self._w, doc="Attention weights, shape (n_attributes,).")
+    C = property(lambda self: self._C, doc="Contrast matrix, shape (n_options, n_options).")
+    D = property(
+        lambda self: self._D,
+        doc="Hotaling squared distances, shape (n_options, n_options); None if built from S.",
+    )
+    S = property(lambda self: self._S, doc="Feedback matrix, shape (n_options, n_options).")
+    P0 = property(lambda self: self._P0, doc="Initial preference, shape (n_options,).")
+    sigma2 = property(lambda self: self._sigma2, doc="Variance of the valence noise.")
+    phi1 = property(lambda self: self._phi1, doc="Distance sensitivity of inhibition.")
+    phi2 = property(lambda self: self._phi2, doc="Strength of inhibition.")
+    beta = property(lambda self: self._beta, doc="Weight of the dominance dimension.")
+    spectral_radius = property(
+        lambda self: self._spectral_radius, doc="Spectral radius of S, max |eig(S)|."
+    )
+
+    @property
+    def n_options(self) -> int:
+        return self._M.shape[0]
+
+    @property
+    def n_attributes(self) -> int:
+        return self._M.shape[1]
+
+    @property
+    def distance(self) -> np.ndarray | None:
+        """Alias of :attr:`D`, Hotaling's squared distance matrix."""
+        return self._D
+
+    @property
+    def is_parametric(self) -> bool:
+        """True if ``S`` was built from ``phi1``, ``phi2`` and ``beta``."""
+        return self._phi1 is not None
+
+    # ------------------------------------------------------- moments of valence
+    @property
+    def valence_mean(self) -> np.ndarray:
+        """``mu = C M w``, the mean valence per step, shape (n_options,)."""
+        return self._C @ (self._M @ self._w)
+
+    @property
+    def valence_covariance(self) -> np.ndarray:
+        """``Phi = C M Psi M^T C^T + sigma2 C C^T`` with ``Psi = diag(w) - w w^T``.
+
+        The covariance of the valence of one step, shape (n_options, n_options).
+        """
+        w = self._w
+        psi = np.diag(w) - np.outer(w, w)
+        CM = self._C @ self._M
+        return CM @ psi @ CM.T + self._sigma2 * (self._C @ self._C.T)
+
+    # ---------------------------------------------------------------- variants
+    def subset(self, options) -> "MDFTModel":
+        """Return the model restricted to some options, in the given order.
+
+        For a parametric model ``C`` and ``S`` are rebuilt for the subset (the
+        contrast depends on the number of options); for a model built from
+        matrices, ``S`` is restricted and ``C`` rebuilt if it was the standard one.
+
+        Parameters
+        ----------
+        options : sequence of int
+            Distinct option indices, at least two.
+
+        Examples
+        --------
+        >>> model = MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5],
+        ...                   phi1=0.022, phi2=0.05, beta=12.0)
+        >>> model.subset([0, 1]).M
+        array([[1., 3.],
+               [3., 1.]])
+        """
+        idx = np.asarray(options)
+        if idx.ndim != 1 or idx.dtype.kind not in "iu":
+            raise TypeError(f"options must be a 1-d sequence of integers (got {options!r})")
+        if idx.size < 2 or len(set(idx.tolist())) != idx.size:
+            raise ValueError(f"options must hold at least two distinct indices (got {idx.tolist()})")
+        if idx.min() < 0 or idx.max() >= self.n_options:
+            raise ValueError(
+                f"options must lie in [0, {self.n_options - 1}] (got {idx.tolist()})"
+            )
+        if self.is_parametric:
+            return MDFTModel(
+                self._M[idx], self._w, phi1=self._phi1, phi2=self._phi2, beta=self._beta,
+                sigma2=self._sigma2, P0=self._P0[idx],
+            )
+        if not self._standard_contrast:
+            raise ValueError(
+                "subset needs the standard contrast matrix; this model was built with a custom C"
+            )
+        return MDFTModel.from_matrices(
+            self._M[idx], self._w, S=self._S[np.ix_(idx, idx)], sigma2=self._sigma2,
+            P0=self._P0[idx],
+        )
+
+    def replace(self, **changes) -> "MDFTModel":
+        """Return a copy with some of ``M``, ``w``, ``phi1``, ``phi2``, ``beta``,
+        ``sigma2``, ``P0`` replaced (parametric models only).
+
+        Examples
+        --------
+        >>> model = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+        >>> model.replace(w=[0.7, 0.3]).w
+        array([0.7, 0.3])
+        """
+        allowed = {"M", "w", "phi1", "phi2", "beta", "sigma2", "P0"}
+        unknown = set(changes) - allowed
+        if unknown:
+            raise TypeError(
+                f"replace got unknown parameter(s) {sorted(unknown)}; allowed: {sorted(allowed)}"
+            )
+        if not self.is_parametric:
+            raise ValueError("replace needs a parametric model (built with phi1, phi2, beta)")
+        params = dict(
+            M=self._M, w=self._w, phi1=self._phi1, phi2=self._phi2, beta=self._beta,
+            sigma2=self._sigma2, P0=self._P0,
+        )
+        if "M" in changes and "P0" not in changes:
+            params["P0"] = None
+        params.update(changes)
+        M = params.pop("M")
+        w = params.pop("w")
+        return MDFTModel(M, w, **params)
+
+    def __repr__(self) -> str:
+        if self.is_parametric:
+            params = f"phi1={self._phi1:g}, phi2={self._phi2:g}, beta={self._beta:g}, "
+        else:
+            params = "S=<explicit>, "
+        return (
+            f"MDFTModel(n_options={self.n_options}, n_attributes={self.n_attributes}, "
+            f"{params}sigma2={self._sigma2:g}, spectral_radius={self._spectral_radius:.4g})"
+        )
+
+
+def _check_option_count(M: np.ndarray) -> None:
+    if M.shape[0] < 2:
+        raise ValueError(
+            f"M must have at least 2 options (rows) (got shape {M.shape}); MDFT compares options"
+        )
+    if M.shape[1] < 1:
+        raise ValueError(f"M must have at least 1 attribute (column) (got shape {M.shape})")
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a

@@ -1,0 +1,6 @@
+"""Orchestrators that trade a nominal goal off against learned constraints.
+
+Greedy, weighted-average and MDFT orchestrators, rollouts, the paper's
+experiments and the ``mdft`` command line. Uses :mod:`mdft` and :mod:`irl`
+through their public APIs only.
+"""
