@@ -11,8 +11,12 @@ from .model import (
     distance_matrix,
     feedback_matrix,
 )
+from .closed_form import ClosedFormAccuracyWarning, choice_probabilities, preference_moments
 
 __all__ = [
+    "ClosedFormAccuracyWarning",
+    "choice_probabilities",
+    "preference_moments",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",

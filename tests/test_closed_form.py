@@ -1,0 +1,281 @@
+"""The fixed-time closed form: moments, orthant probabilities, singular cases, bad input.
+
+Reference values come from (a) a brute-force step-by-step recursion of the moments,
+(b) scipy's multivariate normal CDF, (c) Monte Carlo simulation of MDFT, with a tolerance
+of 3 standard errors of the Monte Carlo estimate, and (d) analytic limiting cases.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+import scipy.stats as st
+from hypothesis import given, settings
+from hypothesis import strategies as hst
+
+import mdft
+from mdft import MDFTModel, choice_probabilities, preference_moments
+from mdft.closed_form import _probabilities_from_moments
+
+CANON = dict(phi1=0.022, phi2=0.05, beta=12.0)
+A, B = [1.0, 3.0], [3.0, 1.0]
+SETS = {
+    "binary": [A, B],
+    "similarity": [A, B, [0.9, 3.1]],
+    "compromise": [A, B, [2.0, 2.0]],
+    "attraction": [A, B, [0.5, 2.5]],
+}
+
+
+def model(M, w=(0.5, 0.5), **kw):
+    params = {**CANON, "sigma2": 1.0, **kw}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        return MDFTModel(M, list(w), **params)
+
+
+def brute_moments(m, T):
+    """Step-by-step recursion of the mean and covariance of P(t)."""
+    S, mu, phi = np.asarray(m.S), m.valence_mean, m.valence_covariance
+    xi, om = np.asarray(m.P0, float).copy(), np.zeros((m.n_options, m.n_options))
+    for _ in range(T):
+        xi = S @ xi + mu
+        om = S @ om @ S.T + phi
+    return xi, om
+
+
+def numpy_simulation(m, T, n_trials, rng):
+    """A slow, plain NumPy Monte Carlo of fixed-time MDFT (ties are measure zero here)."""
+    S, C, M, w = (np.asarray(x) for x in (m.S, m.C, m.M, m.w))
+    CM = C @ M
+    P = np.tile(np.asarray(m.P0, float), (n_trials, 1))
+    sd = np.sqrt(m.sigma2)
+    for _ in range(T):
+        j = rng.choice(w.size, size=n_trials, p=w)
+        eps = rng.standard_normal((n_trials, m.n_options)) * sd
+        P = P @ S.T + CM[:, j].T + eps @ C.T
+    return np.bincount(P.argmax(axis=1), minlength=m.n_options) / n_trials
+
+
+def monte_carlo(m, T, n_trials, seed):
+    """``mdft.simulate`` when the engine is present, else the NumPy reference above."""
+    if hasattr(mdft, "simulate") and hasattr(mdft, "FixedTime"):
+        res = mdft.simulate(m, n_trials, stopping=mdft.FixedTime(T), rng=seed)
+        return np.asarray(res.probabilities), n_trials
+    n_trials = min(n_trials, 40_000)
+    return numpy_simulation(m, T, n_trials, np.random.default_rng(seed)), n_trials
+
+
+def orthant_reference(mean, cov):
+    """Choice probabilities from scipy's multivariate normal CDF."""
+    n = mean.size
+    out = []
+    for i in range(n):
+        L = -np.eye(n)[np.arange(n) != i]
+        L[:, i] = 1.0
+        if n == 2:
+            out.append(st.norm.sf(0.0, loc=(L @ mean)[0], scale=np.sqrt((L @ cov @ L.T)[0, 0])))
+        else:
+            out.append(st.multivariate_normal.cdf(
+                np.zeros(n - 1), mean=-(L @ mean), cov=L @ cov @ L.T, abseps=1e-6, releps=1e-6,
+                rng=0))
+    return np.array(out)
+
+
+# ------------------------------------------------------------------ moments
+@pytest.mark.parametrize("name", list(SETS))
+@pytest.mark.parametrize("T", [1, 2, 3, 17, 100, 257])
+def test_moments_match_brute_force(name, T):
+    m = model(SETS[name])
+    mean, cov = preference_moments(m, T)
+    xi, om = brute_moments(m, T)
+    np.testing.assert_allclose(mean, xi, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(cov, om, rtol=1e-10, atol=1e-10 * np.abs(om).max())
+
+
+def test_moments_with_initial_preference_and_spectral_radius_one():
+    # S = I exactly: xi = P0 + T mu and Omega = T Phi.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        m = MDFTModel.from_matrices([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]], [0.3, 0.7],
+                                    S=np.eye(3), P0=[1.0, -2.0, 0.5])
+    for T in (1, 10, 1000):
+        mean, cov = preference_moments(m, T)
+        np.testing.assert_allclose(mean, m.P0 + T * m.valence_mean, atol=1e-9)
+        np.testing.assert_allclose(cov, T * m.valence_covariance, rtol=1e-12, atol=1e-9)
+
+
+def test_moments_are_symmetric_psd_and_inputs_untouched():
+    m = model(SETS["compromise"])
+    S_before = np.array(m.S)
+    mean, cov = preference_moments(m, 100)
+    np.testing.assert_array_equal(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > -1e-9 * np.abs(cov).max()
+    np.testing.assert_array_equal(m.S, S_before)
+
+
+# ------------------------------------------------------------------ orthant probabilities
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+@pytest.mark.parametrize("seed", range(3))
+def test_probabilities_match_scipy_mvn(n, seed):
+    rng = np.random.default_rng(seed)
+    mean = rng.normal(size=n)
+    X = rng.normal(size=(n, n))
+    cov = X @ X.T + 0.1 * np.eye(n)
+    p = _probabilities_from_moments(mean, cov)
+    ref = orthant_reference(mean, cov)
+    tol = 1e-12 if n <= 3 else 1e-4  # Owen's T is exact; n >= 4 uses quasi-Monte Carlo
+    np.testing.assert_allclose(p, ref, atol=tol)
+    assert abs(p.sum() - 1.0) < 1e-12
+
+
+def test_bivariate_special_points():
+    # Zero means: Pr = 1/4 + asin(rho)/(2 pi) for each pair comparison.
+    cov = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 1.5]])
+    p = _probabilities_from_moments(np.zeros(3), cov)
+    np.testing.assert_allclose(p, orthant_reference(np.zeros(3), cov), atol=1e-12)
+    # One comparison with mean exactly zero.
+    mean = np.array([0.5, 0.5, -0.1])
+    np.testing.assert_allclose(_probabilities_from_moments(mean, cov),
+                               orthant_reference(mean, cov), atol=1e-12)
+
+
+# ------------------------------------------------------------------ against Monte Carlo
+@pytest.mark.parametrize("name", list(SETS))
+def test_closed_form_agrees_with_monte_carlo_canonical_sets(name):
+    """Within 3 standard errors sqrt(p (1 - p) / n_trials) per option, T = 100."""
+    m = model(SETS[name])
+    p = choice_probabilities(m, 100)
+    q, n_trials = monte_carlo(m, 100, 200_000, seed=list(SETS).index(name))
+    se = np.sqrt(np.maximum(q * (1 - q), 1e-4) / n_trials)
+    assert np.all(np.abs(p - q) <= 3 * se), (p, q, se)
+
+
+def test_canonical_effects_in_closed_form():
+    p_bin = choice_probabilities(model(SETS["binary"]), 100)
+    p_sim = choice_probabilities(model(SETS["similarity"]), 100)
+    p_com = choice_probabilities(model(SETS["compromise"]), 100)
+    p_att = choice_probabilities(model(SETS["attraction"]), 100)
+    assert p_sim[0] < p_sim[1] or p_sim[1] < p_sim[0]  # the set is asymmetric
+    assert p_sim[1] < p_sim[0] + p_sim[2]  # B loses share to the pair A, S
+    assert p_com[2] > max(p_com[0], p_com[1])
+    assert p_att[0] > p_bin[0]
+
+
+# ------------------------------------------------------------------ singular cases
+def test_sigma2_zero_one_attribute_is_deterministic():
+    m = MDFTModel([[1.0], [3.0], [2.0]], [1.0], **CANON, sigma2=0.0)
+    np.testing.assert_array_equal(choice_probabilities(m, 50), [0.0, 1.0, 0.0])
+
+
+def test_identical_options_split_ties_exactly():
+    m = MDFTModel([[2.0], [2.0], [1.0]], [1.0], **CANON, sigma2=0.0)
+    np.testing.assert_allclose(choice_probabilities(m, 10), [0.5, 0.5, 0.0])
+    m = MDFTModel([[2.0], [2.0], [2.0]], [1.0], **CANON, sigma2=0.0)
+    np.testing.assert_allclose(choice_probabilities(m, 10), [1 / 3] * 3)
+    # Identical options with noise: the twins share equally with the rest.
+    m = MDFTModel([[1, 3], [1, 3], [3, 1]], [0.5, 0.5], **CANON, sigma2=0.0)
+    p = choice_probabilities(m, 30)
+    assert p[0] == p[1] and abs(p.sum() - 1) < 1e-12
+
+
+def test_sigma2_zero_rank_one_covariance_is_exact():
+    # T = 1, sigma2 = 0, two attributes: P(1) = C M e_j, one of two points.
+    M = np.array([[1.0, 3.0], [3.0, 1.0], [2.2, 2.2]])
+    w = np.array([0.3, 0.7])
+    m = MDFTModel(M, w, **CANON, sigma2=0.0)
+    # The Gaussian with the same two moments: P = xi + a z along one direction.
+    p = choice_probabilities(m, 1)
+    mean, cov = preference_moments(m, 1)
+    vals, vecs = np.linalg.eigh(cov)
+    a = vecs[:, -1] * np.sqrt(vals[-1])
+    z = np.linspace(-9, 9, 400_001)
+    choice = np.argmax(mean[None, :] + z[:, None] * a[None, :], axis=1)
+    dens = st.norm.pdf(z) * (z[1] - z[0])
+    ref = np.array([dens[choice == i].sum() for i in range(3)])
+    np.testing.assert_allclose(p, ref, atol=1e-4)
+    assert np.isclose(np.linalg.matrix_rank(cov), 1)
+
+
+def test_sigma2_zero_many_options_rank_deficient():
+    # Five options, two attributes, sigma2 = 0, T = 2: the covariance has rank <= 2.
+    M = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0], [0.5, 2.5], [2.5, 1.2]])
+    m = MDFTModel(M, [0.4, 0.6], **CANON, sigma2=0.0)
+    p = choice_probabilities(m, 2)
+    mean, cov = preference_moments(m, 2)
+    # Reference: sample the degenerate Gaussian directly.
+    rng = np.random.default_rng(3)
+    vals, vecs = np.linalg.eigh(cov)
+    keep = vals > 1e-12 * vals.max()
+    Z = rng.standard_normal((400_000, keep.sum()))
+    P = mean + Z @ (vecs[:, keep] * np.sqrt(vals[keep])).T
+    q = np.bincount(P.argmax(axis=1), minlength=5) / len(P)
+    se = np.sqrt(np.maximum(q * (1 - q), 1e-4) / len(P))
+    assert np.all(np.abs(p - q) < 4 * se + 1e-4), (p, q)
+    assert abs(p.sum() - 1) < 1e-9
+
+
+def test_identity_feedback_matches_brute_force_probabilities():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        m = MDFTModel.from_matrices(SETS["compromise"], [0.5, 0.5], S=np.eye(3))
+    mean, cov = preference_moments(m, 100)
+    np.testing.assert_allclose(choice_probabilities(m, 100), orthant_reference(mean, cov),
+                               atol=1e-12)
+
+
+# ------------------------------------------------------------------ properties
+@settings(deadline=None, max_examples=30)
+@given(
+    n=hst.integers(2, 5),
+    seed=hst.integers(0, 10_000),
+    T=hst.integers(1, 150),
+    sigma2=hst.sampled_from([0.0, 0.3, 1.0]),
+)
+def test_property_sum_to_one_and_permutation(n, seed, T, sigma2):
+    rng = np.random.default_rng(seed)
+    M = rng.uniform(0, 4, size=(n, 2))
+    w = rng.dirichlet([1, 1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        m = MDFTModel(M, w, phi1=0.05, phi2=0.04, beta=5.0, sigma2=sigma2)
+        perm = rng.permutation(n)
+        mp = MDFTModel(M[perm], w, phi1=0.05, phi2=0.04, beta=5.0, sigma2=sigma2)
+    p = choice_probabilities(m, T)
+    assert np.all(p >= 0) and abs(p.sum() - 1) < 1e-9
+    tol = 1e-9 if n <= 3 else 2e-4
+    np.testing.assert_allclose(choice_probabilities(mp, T), p[perm], atol=tol)
+
+
+def test_dominated_option_almost_never_chosen():
+    m = model([[3.0, 3.0], [1.0, 1.0], [2.9, 3.1]])
+    assert choice_probabilities(m, 100)[1] < 1e-6
+
+
+# ------------------------------------------------------------------ bad input
+def test_bad_n_steps():
+    m = model(SETS["binary"])
+    with pytest.raises(ValueError, match="n_steps must be an integer >= 1"):
+        choice_probabilities(m, 0)
+    with pytest.raises(TypeError, match="n_steps must be an integer"):
+        choice_probabilities(m, 2.5)
+    with pytest.raises(TypeError, match="n_steps must be an integer"):
+        preference_moments(m, True)
+    with pytest.raises(ValueError, match="n_steps must be an integer >= 1"):
+        preference_moments(m, -3)
+
+
+def test_bad_model():
+    with pytest.raises(TypeError, match="model must be an mdft.MDFTModel"):
+        choice_probabilities(np.eye(2), 10)
+    with pytest.raises(TypeError, match="model must be an mdft.MDFTModel"):
+        preference_moments("model", 10)
+
+
+def test_non_finite_moments_warn():
+    # A strongly expansive S over a very long horizon overflows: say so, do not hide it.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        m = MDFTModel.from_matrices(SETS["compromise"], [0.5, 0.5], S=2.0 * np.eye(3))
+    with pytest.raises(FloatingPointError, match="not finite"):
+        choice_probabilities(m, 5000)
