@@ -1,0 +1,381 @@
+"""Compiled kernels of :mod:`irl`.
+
+Every kernel works on the padded sparse layout of :class:`irl.mdp.MDP`:
+``next_states[s, a, k]`` and ``probs[s, a, k]`` (``k < K``; padding entries
+have probability zero). Terminal states are absorbing: they have value zero,
+take no action and stop every visitation mass that enters them.
+
+Kernels do no validation and have no defaults; the public layer
+(:mod:`irl.planning`, :mod:`irl.mesc`, :mod:`irl.demonstrations`) checks every
+argument once before calling them.
+"""
+
+import numpy as np
+
+from ._numba import njit
+
+
+# --------------------------------------------------------------------- helpers
+@njit
+def expected_rewards(next_states, probs, rewards, terminal):
+    """r_bar[s, a] = sum_k probs[s, a, k] * rewards[s, a, k] (zero at terminal states)."""
+    n_states, n_actions, n_succ = probs.shape
+    out = np.zeros((n_states, n_actions))
+    for s in range(n_states):
+        if terminal[s]:
+            continue
+        for a in range(n_actions):
+            acc = 0.0
+            for k in range(n_succ):
+                acc += probs[s, a, k] * rewards[s, a, k]
+            out[s, a] = acc
+    return out
+
+
+@njit
+def penalised_expected_rewards(next_states, probs, rewards, terminal, u_src, u_act, u_dst):
+    """Expected reward of R - phi . omega where phi . omega = u_src[s] + u_act[a] + u_dst[s']."""
+    n_states, n_actions, n_succ = probs.shape
+    out = np.zeros((n_states, n_actions))
+    for s in range(n_states):
+        if terminal[s]:
+            continue
+        for a in range(n_actions):
+            acc = 0.0
+            for k in range(n_succ):
+                p = probs[s, a, k]
+                if p != 0.0:
+                    acc += p * (rewards[s, a, k] - u_dst[next_states[s, a, k]])
+            out[s, a] = acc - u_src[s] - u_act[a]
+    return out
+
+
+@njit
+def _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q):
+    n_states, n_actions, n_succ = probs.shape
+    for s in range(n_states):
+        if terminal[s]:
+            for a in range(n_actions):
+                q[s, a] = 0.0
+            continue
+        for a in range(n_actions):
+            acc = 0.0
+            for k in range(n_succ):
+                acc += probs[s, a, k] * v_next[next_states[s, a, k]]
+            q[s, a] = r_bar[s, a] + discount * acc
+
+
+@njit
+def _logsumexp_rows(q, terminal, v, policy):
+    """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals)."""
+    n_states, n_actions = q.shape
+    for s in range(n_states):
+        if terminal[s]:
+            v[s] = 0.0
+            for a in range(n_actions):
+                policy[s, a] = 1.0 / n_actions
+            continue
+        m = q[s, 0]
+        for a in range(1, n_actions):
+            if q[s, a] > m:
+                m = q[s, a]
+        acc = 0.0
+        for a in range(n_actions):
+            e = np.exp(q[s, a] - m)
+            policy[s, a] = e
+            acc += e
+        v[s] = m + np.log(acc)
+        for a in range(n_actions):
+            policy[s, a] /= acc
+
+
+# ------------------------------------------------------------ value iteration
+@njit
+def value_iteration(next_states, probs, r_bar, terminal, discount, max_iter, tol):
+    """Optimal values by repeated Bellman backups, v <- max_a (r_bar + discount * P v).
+
+    Returns ``(v, q, n_iter, converged)``; stops when the largest change is <= tol.
+    """
+    n_states, n_actions, _ = probs.shape
+    v = np.zeros(n_states)
+    q = np.zeros((n_states, n_actions))
+    converged = False
+    n_iter = 0
+    for it in range(max_iter):
+        _bellman_q(next_states, probs, r_bar, terminal, discount, v, q)
+        delta = 0.0
+        for s in range(n_states):
+            best = 0.0
+            if not terminal[s]:
+                best = q[s, 0]
+                for a in range(1, n_actions):
+                    if q[s, a] > best:
+                        best = q[s, a]
+            d = abs(best - v[s])
+            if d > delta:
+                delta = d
+            v[s] = best
+        n_iter = it + 1
+        if delta <= tol:
+            converged = True
+            break
+    _bellman_q(next_states, probs, r_bar, terminal, discount, v, q)
+    return v, q, n_iter, converged
+
+
+@njit
+def soft_value_iteration(next_states, probs, r_bar, terminal, discount, max_iter, tol):
+    """Stationary soft values v <- log sum_a exp(r_bar + discount * P v).
+
+    Returns ``(v, q, policy, n_iter, converged)``.
+    """
+    n_states, n_actions, _ = probs.shape
+    v = np.zeros(n_states)
+    v_new = np.zeros(n_states)
+    q = np.zeros((n_states, n_actions))
+    policy = np.zeros((n_states, n_actions))
+    converged = False
+    n_iter = 0
+    for it in range(max_iter):
+        _bellman_q(next_states, probs, r_bar, terminal, discount, v, q)
+        _logsumexp_rows(q, terminal, v_new, policy)
+        delta = 0.0
+        for s in range(n_states):
+            d = abs(v_new[s] - v[s])
+            if d > delta or d != d:
+                delta = d if d == d else np.inf
+            v[s] = v_new[s]
+        n_iter = it + 1
+        if delta <= tol:
+            converged = True
+            break
+    _bellman_q(next_states, probs, r_bar, terminal, discount, v, q)
+    _logsumexp_rows(q, terminal, v_new, policy)
+    return v, q, policy, n_iter, converged
+
+
+@njit
+def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, horizon):
+    """Time-indexed soft values over ``horizon`` steps with V_horizon = 0.
+
+    Returns ``(v, q, policy)`` with shapes (horizon + 1, S), (horizon, S, A),
+    (horizon, S, A); ``v[t]`` is the soft value with ``horizon - t`` steps to go.
+    """
+    n_states, n_actions, _ = probs.shape
+    v = np.zeros((horizon + 1, n_states))
+    q = np.zeros((horizon, n_states, n_actions))
+    policy = np.zeros((horizon, n_states, n_actions))
+    for t in range(horizon - 1, -1, -1):
+        _bellman_q(next_states, probs, r_bar, terminal, discount, v[t + 1], q[t])
+        _logsumexp_rows(q[t], terminal, v[t], policy[t])
+    return v, q, policy
+
+
+@njit
+def soft_backward_policy(next_states, probs, r_bar, terminal, discount, horizon):
+    """Like :func:`soft_value_iteration_finite` but keeps only v[0] and the policy."""
+    n_states, n_actions, _ = probs.shape
+    v_next = np.zeros(n_states)
+    v = np.zeros(n_states)
+    q = np.zeros((n_states, n_actions))
+    policy = np.zeros((horizon, n_states, n_actions))
+    for t in range(horizon - 1, -1, -1):
+        _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q)
+        _logsumexp_rows(q, terminal, v, policy[t])
+        for s in range(n_states):
+            v_next[s] = v[s]
+    return v, policy
+
+
+# ------------------------------------------------------------------ visitation
+@njit
+def _propagate(next_states, probs, terminal, pol, d, weight, sa, dst, d_next):
+    n_states, n_actions, n_succ = probs.shape
+    for s in range(n_states):
+        d_next[s] = 0.0
+    for s in range(n_states):
+        ds = d[s]
+        if ds == 0.0 or terminal[s]:
+            continue
+        for a in range(n_actions):
+            m = ds * pol[s, a]
+            if m == 0.0:
+                continue
+            sa[s, a] += weight * m
+            for k in range(n_succ):
+                p = probs[s, a, k]
+                if p != 0.0:
+                    ns = next_states[s, a, k]
+                    d_next[ns] += m * p
+                    dst[ns] += weight * m * p
+
+
+@njit
+def visitation_finite(next_states, probs, terminal, discount, policy, d0):
+    """Discounted visitation over ``policy.shape[0]`` steps of a time-indexed policy.
+
+    Returns ``(sa, dst)``: ``sa[s, a] = sum_t discount**t Pr(s_t = s, a_t = a)`` and
+    ``dst[s'] = sum_t discount**t Pr(s_t non-terminal, s_{t+1} = s')``.
+    """
+    n_states, n_actions, _ = probs.shape
+    horizon = policy.shape[0]
+    sa = np.zeros((n_states, n_actions))
+    dst = np.zeros(n_states)
+    d = d0.copy()
+    d_next = np.zeros(n_states)
+    weight = 1.0
+    for t in range(horizon):
+        _propagate(next_states, probs, terminal, policy[t], d, weight, sa, dst, d_next)
+        for s in range(n_states):
+            d[s] = d_next[s]
+        weight *= discount
+    return sa, dst
+
+
+@njit
+def visitation_stationary(next_states, probs, terminal, discount, policy, d0, max_iter, tol):
+    """Discounted visitation of a stationary policy, summed until the mass left is <= tol.
+
+    Returns ``(sa, dst, n_iter, converged)``; converged means the discounted mass
+    still in non-terminal states after ``n_iter`` steps is at most ``tol``.
+    """
+    n_states, n_actions, _ = probs.shape
+    sa = np.zeros((n_states, n_actions))
+    dst = np.zeros(n_states)
+    d = d0.copy()
+    d_next = np.zeros(n_states)
+    weight = 1.0
+    converged = False
+    n_iter = 0
+    for it in range(max_iter):
+        _propagate(next_states, probs, terminal, policy, d, weight, sa, dst, d_next)
+        weight *= discount
+        left = 0.0
+        for s in range(n_states):
+            d[s] = d_next[s]
+            if not terminal[s]:
+                left += d_next[s]
+        n_iter = it + 1
+        if weight * left <= tol:
+            converged = True
+            break
+    return sa, dst, n_iter, converged
+
+
+# -------------------------------------------------------------------- sampling
+@njit
+def _draw(cdf_row_probs, u):
+    acc = 0.0
+    n = cdf_row_probs.shape[0]
+    for i in range(n):
+        acc += cdf_row_probs[i]
+        if u < acc:
+            return i
+    # round-off: return the last entry with positive probability
+    for i in range(n - 1, -1, -1):
+        if cdf_row_probs[i] > 0.0:
+            return i
+    return n - 1
+
+
+@njit
+def sample_trajectories(next_states, probs, terminal, policy, time_indexed, start, n, max_steps, rng):
+    """Sample ``n`` trajectories; each stops on entering a terminal state or after max_steps.
+
+    Returns flat arrays ``(offsets, states, actions, succ, reached)``: trajectory i
+    has transitions ``offsets[i]:offsets[i + 1]``.
+    """
+    n_policy_steps = policy.shape[0]
+    cap = n * max_steps
+    states = np.empty(cap, dtype=np.int64)
+    actions = np.empty(cap, dtype=np.int64)
+    succ = np.empty(cap, dtype=np.int64)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    reached = np.zeros(n, dtype=np.bool_)
+    pos = 0
+    for i in range(n):
+        s = _draw(start, rng.random())
+        t = 0
+        while t < max_steps and not terminal[s]:
+            if time_indexed:
+                row = policy[min(t, n_policy_steps - 1), s]
+            else:
+                row = policy[0, s]
+            a = _draw(row, rng.random())
+            k = _draw(probs[s, a], rng.random())
+            ns = next_states[s, a, k]
+            states[pos] = s
+            actions[pos] = a
+            succ[pos] = ns
+            pos += 1
+            s = ns
+            t += 1
+        reached[i] = terminal[s]
+        offsets[i + 1] = pos
+    return offsets, states[:pos].copy(), actions[:pos].copy(), succ[:pos].copy(), reached
+
+
+# ---------------------------------------------------------------- utilities
+@njit
+def reaches_terminal(next_states, probs, terminal):
+    """Mask of states from which some policy reaches a terminal state with positive probability."""
+    n_states, n_actions, n_succ = probs.shape
+    # reverse adjacency by repeated sweeps (bounded by n_states passes)
+    ok = terminal.copy()
+    for _ in range(n_states):
+        changed = False
+        for s in range(n_states):
+            if ok[s]:
+                continue
+            found = False
+            for a in range(n_actions):
+                for k in range(n_succ):
+                    if probs[s, a, k] > 0.0 and ok[next_states[s, a, k]]:
+                        found = True
+                        break
+                if found:
+                    break
+            if found:
+                ok[s] = True
+                changed = True
+        if not changed:
+            break
+    return ok
+
+
+@njit
+def merge_successors(dest, prob):
+    """Merge duplicate successors of each (s, a); returns padded (next_states, probs).
+
+    ``dest`` and ``prob`` have shape (S, A, M); the result has K = the largest number
+    of distinct positive-probability successors, padded with the state itself and 0.
+    """
+    n_states, n_actions, m = dest.shape
+    out_d = np.empty((n_states, n_actions, m), dtype=np.int64)
+    out_p = np.zeros((n_states, n_actions, m))
+    width = 1
+    for s in range(n_states):
+        for a in range(n_actions):
+            cnt = 0
+            for j in range(m):
+                p = prob[s, a, j]
+                if p <= 0.0:
+                    continue
+                d = dest[s, a, j]
+                found = -1
+                for i in range(cnt):
+                    if out_d[s, a, i] == d:
+                        found = i
+                        break
+                if found >= 0:
+                    out_p[s, a, found] += p
+                else:
+                    out_d[s, a, cnt] = d
+                    out_p[s, a, cnt] = p
+                    cnt += 1
+            for i in range(cnt, m):
+                out_d[s, a, i] = s
+                out_p[s, a, i] = 0.0
+            if cnt > width:
+                width = cnt
+    return out_d[:, :, :width].copy(), out_p[:, :, :width].copy()

@@ -1,0 +1,299 @@
+"""Planning in tabular MDPs: value iteration, soft value iteration and visitation.
+
+All functions take an :class:`irl.mdp.MDP` (conventions in :mod:`irl.mdp`):
+``policy[s, a]`` for stationary policies, ``policy[t, s, a]`` for time-indexed
+ones, values are zero at terminal states.
+
+Equations
+---------
+With ``r(s, a) = sum_s' P(s'|s, a) R(s, a, s')`` and discount gamma:
+
+- value iteration: ``Q(s, a) = r(s, a) + gamma sum_s' P(s'|s, a) V(s')``,
+  ``V(s) = max_a Q(s, a)``;
+- soft value iteration (maximum causal entropy backward pass):
+  ``V(s) = log sum_a exp Q(s, a)`` and ``pi(a|s) = exp(Q(s, a) - V(s))``;
+  with a finite ``horizon`` H the recursion runs from ``V_H = 0`` back to
+  ``V_0`` and gives a time-indexed policy ``pi_t``;
+- visitation (forward pass): ``D(s, a) = sum_t gamma**t Pr(s_t = s, a_t = a)``
+  for a start distribution, with the same horizon and discount as the
+  backward pass; mass that enters a terminal state stops.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _kernels
+from .mdp import MDP, _as_float, _as_int, _as_real
+
+__all__ = [
+    "PlanningResult",
+    "SoftPlanningResult",
+    "VisitationResult",
+    "value_iteration",
+    "soft_value_iteration",
+    "state_action_visitation",
+    "greedy_policy",
+]
+
+
+def _check_mdp(mdp):
+    if not isinstance(mdp, MDP):
+        raise TypeError(f"mdp must be an irl.MDP (got {type(mdp).__name__})")
+
+
+def _check_iter(max_iter, tol):
+    return _as_int("max_iter", max_iter, low=1), _as_real("tol", tol, low=0.0, low_open=True)
+
+
+@dataclass(frozen=True, eq=False)
+class PlanningResult:
+    """Optimal values of an MDP.
+
+    Attributes
+    ----------
+    values : ndarray, shape (n_states,)
+    q_values : ndarray, shape (n_states, n_actions)
+    policy : ndarray, shape (n_states, n_actions)
+        Greedy policy, uniform over the actions within 1e-9 of the best.
+    n_iter : int
+    converged : bool
+    """
+
+    values: np.ndarray
+    q_values: np.ndarray
+    policy: np.ndarray
+    n_iter: int
+    converged: bool
+
+
+@dataclass(frozen=True, eq=False)
+class SoftPlanningResult:
+    """Soft (maximum causal entropy) values and policy.
+
+    Attributes
+    ----------
+    values : ndarray, shape (n_states,) or (horizon + 1, n_states)
+        Soft values ``V``; time-indexed when a horizon was given (``values[H] = 0``).
+    q_values : ndarray, shape (n_states, n_actions) or (horizon, n_states, n_actions)
+    policy : ndarray, shape (n_states, n_actions) or (horizon, n_states, n_actions)
+        ``exp(Q - V)``; uniform at terminal states.
+    horizon : int or None
+    n_iter : int
+        Backups done (``horizon`` for the finite-horizon recursion).
+    converged : bool
+        Always True for a finite horizon.
+    """
+
+    values: np.ndarray
+    q_values: np.ndarray
+    policy: np.ndarray
+    horizon: int | None
+    n_iter: int
+    converged: bool
+
+
+@dataclass(frozen=True, eq=False)
+class VisitationResult:
+    """Expected discounted visitation of a policy.
+
+    Attributes
+    ----------
+    state_action : ndarray, shape (n_states, n_actions)
+        ``D(s, a) = sum_t gamma**t Pr(s_t = s, a_t = a)``.
+    states : ndarray, shape (n_states,)
+        ``sum_a D(s, a)`` (visits of non-terminal states).
+    destinations : ndarray, shape (n_states,)
+        ``sum_t gamma**t Pr(s_{t+1} = s')`` over transitions taken at step t
+        (includes entries into terminal states).
+    n_iter : int
+    converged : bool
+    """
+
+    state_action: np.ndarray
+    states: np.ndarray
+    destinations: np.ndarray
+    n_iter: int
+    converged: bool
+
+
+def _warn(name, n_iter, tol):
+    warnings.warn(
+        f"{name} did not converge in max_iter={n_iter} iterations (tol={tol}); "
+        "raise max_iter, or check that the discount is < 1 or a terminal state is reachable",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
+def greedy_policy(q_values, *, atol=1e-9):
+    """Uniform distribution over the maximising actions of each row of ``q_values``.
+
+    Parameters
+    ----------
+    q_values : array_like, shape (..., n_actions)
+    atol : float
+        Actions within ``atol`` of the best count as maximising.
+
+    Returns
+    -------
+    ndarray, same shape as ``q_values``
+
+    Examples
+    --------
+    >>> greedy_policy([[1.0, 1.0, 0.0]]).tolist()
+    [[0.5, 0.5, 0.0]]
+    """
+    q = _as_float("q_values", q_values)
+    best = q.max(axis=-1, keepdims=True)
+    mask = (q >= best - atol).astype(np.float64)
+    return mask / mask.sum(axis=-1, keepdims=True)
+
+
+def value_iteration(mdp, *, max_iter=10_000, tol=1e-8):
+    """Optimal values and Q-values by value iteration.
+
+    Parameters
+    ----------
+    mdp : MDP
+    max_iter : int
+        Maximum number of Bellman backups.
+    tol : float
+        Stop when the largest change of V in one backup is <= tol.
+
+    Returns
+    -------
+    PlanningResult
+
+    Warns
+    -----
+    RuntimeWarning
+        If V did not converge within ``max_iter`` backups.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> res = value_iteration(GridWorld(3, 0, 8, p_slip=0.0, discount=1.0).nominal_mdp)
+    >>> res.converged, round(float(res.values[0]), 3)
+    (True, -1.314)
+    """
+    _check_mdp(mdp)
+    max_iter, tol = _check_iter(max_iter, tol)
+    r_bar = mdp.expected_rewards()
+    v, q, n_iter, converged = _kernels.value_iteration(
+        mdp.next_states, mdp.probs, r_bar, mdp.terminal, mdp.discount, max_iter, tol
+    )
+    if not converged:
+        _warn("value_iteration", max_iter, tol)
+    return PlanningResult(v, q, greedy_policy(q), int(n_iter), bool(converged))
+
+
+def soft_value_iteration(mdp, *, horizon=None, max_iter=10_000, tol=1e-8):
+    """Soft value iteration: the backward pass of maximum causal entropy IRL.
+
+    Parameters
+    ----------
+    mdp : MDP
+    horizon : int or None
+        ``None``: the stationary infinite-horizon fixed point, iterated to
+        ``tol``. An int H: the exact H-step recursion from ``V_H = 0``,
+        giving a time-indexed policy ``policy[t, s, a]``.
+    max_iter, tol : int, float
+        Iteration limit and tolerance (largest change of V) for ``horizon=None``.
+
+    Returns
+    -------
+    SoftPlanningResult
+
+    Warns
+    -----
+    RuntimeWarning
+        If the stationary iteration did not converge.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> mdp = GridWorld(3, 0, 8).nominal_mdp
+    >>> res = soft_value_iteration(mdp)
+    >>> res.policy.shape, bool(abs(res.policy.sum(1) - 1).max() < 1e-12)
+    ((9, 8), True)
+    >>> soft_value_iteration(mdp, horizon=5).policy.shape
+    (5, 9, 8)
+    """
+    _check_mdp(mdp)
+    r_bar = mdp.expected_rewards()
+    if horizon is not None:
+        horizon = _as_int("horizon", horizon)
+        v, q, pol = _kernels.soft_value_iteration_finite(
+            mdp.next_states, mdp.probs, r_bar, mdp.terminal, mdp.discount, horizon
+        )
+        return SoftPlanningResult(v, q, pol, horizon, horizon, True)
+    max_iter, tol = _check_iter(max_iter, tol)
+    v, q, pol, n_iter, converged = _kernels.soft_value_iteration(
+        mdp.next_states, mdp.probs, r_bar, mdp.terminal, mdp.discount, max_iter, tol
+    )
+    if not converged:
+        _warn("soft_value_iteration", max_iter, tol)
+    return SoftPlanningResult(v, q, pol, None, int(n_iter), bool(converged))
+
+
+def check_policy(mdp, policy, name="policy"):
+    """Return ``policy`` as a float array (S, A) or (H, S, A), rows distributions, or raise."""
+    pol = _as_float(name, policy)
+    S, A = mdp.n_states, mdp.n_actions
+    if pol.ndim not in (2, 3) or pol.shape[-2:] != (S, A):
+        raise ValueError(f"{name} must have shape ({S}, {A}) or (horizon, {S}, {A}) (got {pol.shape})")
+    if pol.min() < 0 or np.abs(pol.sum(axis=-1) - 1.0).max() > 1e-8:
+        raise ValueError(f"{name} rows must be probability distributions over actions (non-negative, summing to 1)")
+    return pol
+
+
+def state_action_visitation(mdp, policy, *, start=None, max_iter=100_000, tol=1e-10):
+    """Expected discounted state-action visitation of a policy (the forward pass).
+
+    Parameters
+    ----------
+    mdp : MDP
+    policy : array_like, shape (S, A) or (H, S, A)
+        Stationary or time-indexed policy. A time-indexed policy is followed
+        for exactly H steps (the horizon of the backward pass that made it).
+    start : array_like, shape (S,), optional
+        Start distribution (default ``mdp.start``); any non-negative vector is
+        accepted (visitation is linear in it).
+    max_iter, tol : int, float
+        For a stationary policy: steps are summed until the discounted mass
+        left in non-terminal states is <= tol.
+
+    Returns
+    -------
+    VisitationResult
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> mdp = GridWorld(3, 0, 8, p_slip=0.0).nominal_mdp
+    >>> pol = soft_value_iteration(mdp, horizon=20).policy
+    >>> d = state_action_visitation(mdp, pol)
+    >>> d.state_action.shape, round(float(d.states[0]), 3)
+    ((9, 8), 1.0)
+    """
+    _check_mdp(mdp)
+    pol = check_policy(mdp, policy)
+    d0 = mdp.start if start is None else _as_float("start", start, ndim=1, shape=(mdp.n_states,))
+    if np.any(d0 < 0):
+        raise ValueError("start must be non-negative")
+    d0 = np.ascontiguousarray(d0, dtype=np.float64)
+    if pol.ndim == 3:
+        sa, dst = _kernels.visitation_finite(mdp.next_states, mdp.probs, mdp.terminal, mdp.discount, pol, d0)
+        n_iter, converged = pol.shape[0], True
+    else:
+        max_iter, tol = _check_iter(max_iter, tol)
+        sa, dst, n_iter, converged = _kernels.visitation_stationary(
+            mdp.next_states, mdp.probs, mdp.terminal, mdp.discount, pol, d0, max_iter, tol
+        )
+        if not converged:
+            _warn("state_action_visitation", max_iter, tol)
+    return VisitationResult(sa, sa.sum(axis=1), dst, int(n_iter), bool(converged))

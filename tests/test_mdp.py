@@ -1,0 +1,177 @@
+"""Tests of irl.mdp: construction, conventions and bad input."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from irl import MDP, TransitionFeatures
+
+
+def tiny(seed=0, S=4, A=2, discount=0.9):
+    rng = np.random.default_rng(seed)
+    P = rng.random((S, A, S)) * (rng.random((S, A, S)) < 0.7)
+    P[..., 0] += 1e-3
+    P /= P.sum(axis=2, keepdims=True)
+    R = rng.normal(size=(S, A, S))
+    return P, R
+
+
+def test_from_dense_round_trip():
+    P, R = tiny()
+    mdp = MDP.from_dense(P, R, discount=0.9)
+    np.testing.assert_allclose(mdp.dense_transitions(), P)
+    # rewards sit beside their successors
+    for s in range(4):
+        for a in range(2):
+            for k in range(mdp.n_successors):
+                if mdp.probs[s, a, k] > 0:
+                    assert mdp.rewards[s, a, k] == R[s, a, mdp.next_states[s, a, k]]
+    np.testing.assert_allclose(mdp.expected_rewards(), (P * R).sum(axis=2))
+
+
+def test_from_dense_reward_shapes():
+    P, _ = tiny()
+    by_dest = MDP.from_dense(P, np.arange(4.0))
+    pos = by_dest.probs > 0
+    np.testing.assert_allclose(by_dest.rewards[pos], by_dest.next_states[pos].astype(float))
+    by_sa = MDP.from_dense(P, np.ones((4, 2)))
+    assert np.all(by_sa.rewards[by_sa.probs > 0] == 1.0)
+    with pytest.raises(ValueError, match="rewards must have shape"):
+        MDP.from_dense(P, np.ones((3, 3)))
+
+
+def test_defaults_and_readonly():
+    P, R = tiny()
+    mdp = MDP.from_dense(P, R)
+    np.testing.assert_allclose(mdp.start, 0.25)
+    assert mdp.discount == 1.0 and not mdp.terminal.any()
+    with pytest.raises(ValueError):
+        mdp.probs[0, 0, 0] = 0.5
+
+
+def test_arguments_not_mutated_and_not_aliased():
+    P, R = tiny()
+    mdp0 = MDP.from_dense(P, R)
+    ns, pr, rw = (np.array(x) for x in (mdp0.next_states, mdp0.probs, mdp0.rewards))
+    copies = [x.copy() for x in (ns, pr, rw)]
+    mdp = MDP(ns, pr, rw, discount=0.5)
+    for x, c in zip((ns, pr, rw), copies):
+        np.testing.assert_array_equal(x, c)
+    pr[0, 0, 0] = 7.0
+    assert mdp.probs[0, 0, 0] == copies[1][0, 0, 0]
+
+
+def test_penalised_subtracts_feature_values():
+    S, A, F = 3, 2, 4
+    rng = np.random.default_rng(1)
+    src, act, dst = rng.random((S, F)), rng.random((A, F)), rng.random((S, F))
+    feats = TransitionFeatures(src, sp.csr_array(act), dst, names=list("abcd"))
+    P = np.full((S, A, S), 1 / 3)
+    mdp = MDP.from_dense(P, features=feats)
+    omega = rng.random(F)
+    pen = mdp.penalised(omega)
+    for s in range(S):
+        for a in range(A):
+            for k in range(mdp.n_successors):
+                sn = mdp.next_states[s, a, k]
+                phi = src[s] + act[a] + dst[sn]
+                np.testing.assert_allclose(feats.phi(s, a, sn), phi)
+                assert pen.rewards[s, a, k] == pytest.approx(-phi @ omega)
+    counts = feats.counts(np.ones(S), np.ones(A), np.zeros(S))
+    np.testing.assert_allclose(counts, src.sum(0) + act.sum(0))
+
+
+def test_replace_and_unknown_field():
+    P, R = tiny()
+    mdp = MDP.from_dense(P, R)
+    assert mdp.replace(discount=0.3).discount == 0.3
+    with pytest.raises(TypeError, match="unknown field"):
+        mdp.replace(gamma=0.3)
+
+
+# ------------------------------------------------------------------ bad input
+def valid():
+    P, R = tiny()
+    m = MDP.from_dense(P, R)
+    return np.array(m.next_states), np.array(m.probs), np.array(m.rewards)
+
+
+def test_probs_must_sum_to_one():
+    ns, pr, rw = valid()
+    pr[1, 1, 0] += 0.1
+    with pytest.raises(ValueError, match=r"probs must sum to 1 .* s=1, a=1"):
+        MDP(ns, pr, rw)
+
+
+def test_probs_non_negative():
+    ns, pr, rw = valid()
+    pr[0, 0, 0] = -0.1
+    with pytest.raises(ValueError, match="probs must be non-negative"):
+        MDP(ns, pr, rw)
+
+
+def test_states_out_of_range():
+    ns, pr, rw = valid()
+    ns[2, 0, 0] = 4
+    with pytest.raises(ValueError, match=r"next_states must hold states in \[0, 4\) \(got 4\)"):
+        MDP(ns, pr, rw)
+    ns[2, 0, 0] = -1
+    with pytest.raises(ValueError, match="next_states must hold states"):
+        MDP(ns, pr, rw)
+
+
+def test_shapes_and_types():
+    ns, pr, rw = valid()
+    with pytest.raises(ValueError, match="next_states must have the shape of probs"):
+        MDP(ns[:, :, :1], pr, rw)
+    with pytest.raises(ValueError, match="rewards must have shape"):
+        MDP(ns, pr, rw[:2])
+    with pytest.raises(TypeError, match="next_states must hold integer"):
+        MDP(ns + 0.5, pr, rw)
+    with pytest.raises(ValueError, match="probs must contain only finite"):
+        MDP(ns, pr * np.nan, rw)
+    with pytest.raises(ValueError, match="probs must be a 3-d array"):
+        MDP(ns, pr[0], rw)
+
+
+def test_start_terminal_discount():
+    ns, pr, rw = valid()
+    with pytest.raises(ValueError, match="start must be a probability distribution"):
+        MDP(ns, pr, rw, start=[0.5, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"start must have shape \(4\)"):
+        MDP(ns, pr, rw, start=[1.0])
+    with pytest.raises(ValueError, match=r"terminal must have shape \(4,\)"):
+        MDP(ns, pr, rw, terminal=[True])
+    with pytest.raises(ValueError, match=r"discount must be > 0.0 \(got 0.0\)"):
+        MDP(ns, pr, rw, discount=0.0)
+    with pytest.raises(ValueError, match="discount must be <= 1.0"):
+        MDP(ns, pr, rw, discount=1.5)
+    with pytest.raises(TypeError, match="discount must be a real number"):
+        MDP(ns, pr, rw, discount="0.9")
+
+
+def test_unreachable_goal():
+    # state 0 loops on itself, state 1 is the goal
+    P = np.zeros((2, 1, 2))
+    P[0, 0, 0] = 1.0
+    P[1, 0, 1] = 1.0
+    with pytest.raises(ValueError, match=r"no policy reaches a terminal state from start state\(s\) \[0\]"):
+        MDP.from_dense(P, terminal=[False, True], start=[1.0, 0.0])
+
+
+def test_features_of_wrong_size():
+    P, R = tiny()
+    with pytest.raises(ValueError, match="features must be defined for 4 states and 2 actions"):
+        MDP.from_dense(P, R, features=TransitionFeatures(destination=np.eye(3), n_actions=2))
+    with pytest.raises(ValueError, match="destination must have 2 feature columns"):
+        TransitionFeatures(destination=np.eye(5), action=np.eye(2))
+    with pytest.raises(ValueError, match=r"names must have one entry per feature \(3\)"):
+        TransitionFeatures(destination=np.eye(3), n_actions=1, names=["a"])
+    with pytest.raises(TypeError, match="features must be a TransitionFeatures"):
+        MDP.from_dense(P, R, features=np.eye(4))
+    f = TransitionFeatures(destination=np.eye(4), n_actions=2)
+    mdp = MDP.from_dense(P, R, features=f)
+    with pytest.raises(ValueError, match=r"penalties must have shape \(4\)"):
+        mdp.penalised(np.ones(5))
+    with pytest.raises(ValueError, match="penalised needs an MDP with features"):
+        MDP.from_dense(P, R).penalised(np.ones(4))
