@@ -16,6 +16,22 @@ from .planning import (
     state_action_visitation,
     value_iteration,
 )
+from .metrics import (
+    HardConstraintScores,
+    SoftConstraintErrors,
+    false_discovery_rate,
+    false_positive_rate,
+    hard_constraint_scores,
+    js_divergence,
+    kl_divergence,
+    precision,
+    recall,
+    soft_constraint_errors,
+    visitation_counts,
+    visitation_js_divergence,
+    visitation_kl_divergence,
+)
+from .gym import from_gymnasium
 
 __all__ = [
     "MDP",
@@ -31,4 +47,18 @@ __all__ = [
     "soft_value_iteration",
     "state_action_visitation",
     "value_iteration",
+    "HardConstraintScores",
+    "SoftConstraintErrors",
+    "false_discovery_rate",
+    "false_positive_rate",
+    "hard_constraint_scores",
+    "js_divergence",
+    "kl_divergence",
+    "precision",
+    "recall",
+    "soft_constraint_errors",
+    "visitation_counts",
+    "visitation_js_divergence",
+    "visitation_kl_divergence",
+    "from_gymnasium",
 ]
