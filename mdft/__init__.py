@@ -12,11 +12,16 @@ from .model import (
     feedback_matrix,
 )
 from .closed_form import ClosedFormAccuracyWarning, choice_probabilities, preference_moments
+from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 
 __all__ = [
     "ClosedFormAccuracyWarning",
     "choice_probabilities",
     "preference_moments",
+    "ChoiceData",
+    "FitConvergenceWarning",
+    "FitResult",
+    "fit",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",

@@ -399,3 +399,31 @@ def _orthant_sov(m, A):
     p = float(means.mean())
     err = float(3.0 * means.std(ddof=1) / np.sqrt(means.size))
     return min(max(p, 0.0), 1.0), err
+
+
+def _hotaling_feedback(M, phi1, phi2, beta):
+    """``S`` from evaluations without validation (the same formula as :mod:`mdft.model`)."""
+    diff = M[:, None, :] - M[None, :, :]
+    D = (diff**2).sum(axis=2) + (beta - 1.0) * diff.sum(axis=2) ** 2 / M.shape[1]
+    return np.eye(M.shape[0]) - phi2 * np.exp(-phi1 * D**2)
+
+
+def _fixed_time_probabilities(M, w, phi1, phi2, beta, sigma2, n_steps):
+    """Closed-form probabilities from already validated arrays (used by :mod:`mdft.fit`).
+
+    Returns ``None`` where the moments overflow.
+    """
+    n = M.shape[0]
+    C = np.full((n, n), -1.0 / (n - 1))
+    np.fill_diagonal(C, 1.0)
+    S = _hotaling_feedback(M, phi1, phi2, beta)
+    CM = C @ M
+    mu = CM @ w
+    phi = CM @ (np.diag(w) - np.outer(w, w)) @ CM.T + sigma2 * (C @ C.T)
+    with np.errstate(over="ignore", invalid="ignore"):
+        mean, cov = _moments(S, mu, phi, np.zeros(n), n_steps)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ClosedFormAccuracyWarning)
+        return _probabilities_from_moments(mean, cov)
