@@ -32,6 +32,7 @@ from .metrics import (
     visitation_kl_divergence,
 )
 from .gym import from_gymnasium
+from .scobee import HardConstraintResult, infer_hard_constraints
 
 __all__ = [
     "MDP",
@@ -61,4 +62,6 @@ __all__ = [
     "visitation_js_divergence",
     "visitation_kl_divergence",
     "from_gymnasium",
+    "HardConstraintResult",
+    "infer_hard_constraints",
 ]

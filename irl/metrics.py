@@ -480,6 +480,16 @@ def js_divergence(p, q) -> float:
     return min(max(value, 0.0), float(np.log(2.0)))
 
 
+def _is_flat_set(obj) -> bool:
+    """A set of trajectories stored flat, like :class:`irl.demonstrations.Demonstrations`."""
+    return all(hasattr(obj, k) for k in ("offsets", "trajectory", "__len__"))
+
+
+def _as_sequences(demos):
+    """``[(states, actions), ...]`` of a flat set (each with one more state than actions)."""
+    return [demos.trajectory(i) for i in range(len(demos))]
+
+
 def _pairs(traj, index: int):
     """(states, actions) integer arrays of one trajectory, state-action aligned."""
     states = actions = None
@@ -515,9 +525,10 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
 
     Parameters
     ----------
-    trajectories : sequence
-        Each trajectory is an object with integer arrays ``.states`` and
-        ``.actions`` (as demonstrations are), a ``(states, actions)`` pair, or
+    trajectories : Demonstrations or sequence
+        A :class:`~irl.demonstrations.Demonstrations` set, or a sequence
+        whose trajectories are each an object with integer arrays ``.states``
+        and ``.actions``, a ``(states, actions)`` pair, or
         an ``(n, 2)`` integer array of ``(state, action)`` rows. A trajectory
         may list one more state than actions (its final state, where no
         action is taken; it is not counted).
@@ -542,6 +553,8 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     """
     n_states = _as_positive_int("n_states", n_states)
     n_actions = _as_positive_int("n_actions", n_actions)
+    if _is_flat_set(trajectories):
+        trajectories = _as_sequences(trajectories)
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 2 and trajectories.shape[1] == 2:
         trajectories = [trajectories]
     try:

@@ -15,6 +15,7 @@ import numbers
 import numpy as np
 
 from .gridworld import ACTION_MOVES, ACTIONS, COLOURS, GridWorld
+from .metrics import _as_sequences, _is_flat_set
 
 __all__ = [
     "plot_gridworld",
@@ -208,9 +209,10 @@ def plot_trajectories(ax, world, trajectories, *, color="tab:red", alpha=None, l
         Where to draw.
     world : GridWorld
         The world the trajectories live in.
-    trajectories : sequence
-        Each an object with ``.states`` (such as a demonstration), a
-        ``(states, actions)`` pair or a sequence of states.
+    trajectories : Demonstrations or sequence
+        A :class:`~irl.demonstrations.Demonstrations` set, or a sequence of
+        trajectories, each an object with ``.states``, a ``(states, actions)``
+        pair or a sequence of states.
     color : color, optional
         Line colour (default ``"tab:red"``).
     alpha : float, optional
@@ -242,6 +244,8 @@ def plot_trajectories(ax, world, trajectories, *, color="tab:red", alpha=None, l
     """
     _check_axes(ax)
     _check_world(world)
+    if _is_flat_set(trajectories):
+        trajectories = _as_sequences(trajectories)
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 1:
         trajectories = [trajectories]
     items = list(trajectories)

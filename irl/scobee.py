@@ -1,0 +1,472 @@
+"""The baseline: greedy maximum-likelihood inference of hard constraints (Scobee & Sastry, 2020).
+
+Scobee & Sastry ("Maximum Likelihood Constraint Inference for Inverse
+Reinforcement Learning", ICLR 2020) model demonstrations in a deterministic MDP
+with the maximum entropy distribution over trajectories of a finite horizon,
+``P(tau) = exp(R(tau)) / Z_C`` for every trajectory ``tau`` that satisfies the
+constraint set ``C`` and 0 otherwise. A candidate constraint here is one
+transition feature of the MDP (for a :class:`~irl.gridworld.GridWorld`: a
+state, an action or a colour); a trajectory violates it when one of its
+transitions has that feature (``phi_c(s, a, s') != 0``), or when it starts in a
+state whose destination feature it is (the state is occupied).
+
+Adding a constraint ``c`` that no demonstration violates leaves ``R(tau_i)``
+unchanged and shrinks the normaliser to ``Z_{C+c} = Z_C (1 - A_c)``, where
+``A_c`` is the probability, under the current model, that a trajectory violates
+``c``. The log-likelihood of ``N`` demonstrations therefore grows by
+``-N log(1 - A_c)``: the most likely constraint is the one that removes the most
+probability mass from non-demonstrated trajectories. The method adds
+constraints greedily, one at a time, always in the model constrained by those
+already chosen.
+
+``A_c`` is computed for every candidate at once by the forward "feature
+accrual" pass of Scobee & Sastry's Algorithm 1: the probability of being in
+state ``s`` at time ``t`` having already accrued feature ``c``, propagated with
+the time-indexed maximum entropy policy of the finite-horizon soft value
+iteration (:func:`irl.planning.soft_value_iteration`).
+
+Stopping rule: the Kullback-Leibler divergence from the empirical distribution
+of the demonstrated *trajectories* to the model's trajectory distribution,
+
+    KL(p_D || P_C) = sum_tau p_D(tau) log p_D(tau) - (1/N) sum_i log P_C(tau_i),
+
+falls by exactly ``-log(1 - A_c)`` when ``c`` is added. The method stops when
+that decrease is below ``min_kl_decrease``, when the divergence itself is at most
+``kl_threshold``, or when no admissible candidate remains.
+"""
+
+from __future__ import annotations
+
+import logging
+import numbers
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .mdp import MDP
+from .metrics import _as_sequences, _is_flat_set
+from .planning import soft_value_iteration
+
+__all__ = ["HardConstraintResult", "infer_hard_constraints"]
+
+logger = logging.getLogger(__name__)
+
+_HARD_PENALTY = 1.0e4
+"""Penalty standing in for a removed transition: exp(-1e4) is exactly 0 in float64."""
+
+_DETERMINISTIC_TOL = 1e-12
+
+
+# --------------------------------------------------------------------------- input
+
+
+def _as_trajectories(demonstrations, n_states, n_actions):
+    """Integer (states, actions) pairs, len(states) == len(actions) + 1 (or equal: a prefix)."""
+    if demonstrations is None:
+        raise ValueError("demonstrations must hold at least one trajectory (got None)")
+    if _is_flat_set(demonstrations):
+        demonstrations = _as_sequences(demonstrations)
+    try:
+        items = list(demonstrations)
+    except TypeError as exc:
+        raise TypeError(
+            f"demonstrations must be a sequence of trajectories (got {type(demonstrations).__name__})"
+        ) from exc
+    if not items:
+        raise ValueError("demonstrations must hold at least one trajectory (got an empty set)")
+    out = []
+    for i, traj in enumerate(items):
+        if hasattr(traj, "states") and hasattr(traj, "actions"):
+            s, a = traj.states, traj.actions
+        elif isinstance(traj, dict) and "state_seq" in traj:
+            s, a = traj["state_seq"], traj["action_seq"]
+        elif isinstance(traj, (tuple, list)) and len(traj) == 2:
+            s, a = traj
+        else:
+            raise TypeError(
+                f"demonstration {i} must be a (states, actions) pair or an object with .states and "
+                f".actions (got {type(traj).__name__})"
+            )
+        s = np.asarray(s)
+        a = np.asarray(a)
+        for name, arr in (("states", s), ("actions", a)):
+            if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+                raise TypeError(f"demonstration {i}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})")
+        if s.size == 0:
+            raise ValueError(f"demonstration {i} has no state")
+        if s.size not in (a.size, a.size + 1):
+            raise ValueError(
+                f"demonstration {i} has {s.size} states and {a.size} actions; "
+                "it must have one more state than actions"
+            )
+        if s.min() < 0 or s.max() >= n_states:
+            raise ValueError(f"demonstration {i} has a state outside [0, {n_states})")
+        if a.size and (a.min() < 0 or a.max() >= n_actions):
+            raise ValueError(f"demonstration {i} has an action outside [0, {n_actions})")
+        out.append((s.astype(np.int64), a.astype(np.int64)))
+    return out
+
+
+def _check_deterministic(mdp):
+    live = ~mdp.terminal
+    biggest = mdp.probs.max(axis=2)[live]
+    if biggest.size and np.min(biggest) < 1.0 - _DETERMINISTIC_TOL:
+        s, a = np.argwhere((mdp.probs.max(axis=2) < 1.0 - _DETERMINISTIC_TOL) & live[:, None])[0]
+        raise ValueError(
+            "Scobee & Sastry's method assumes deterministic transitions, but state "
+            f"{int(s)} action {int(a)} has several successors (largest probability "
+            f"{mdp.probs[s, a].max():.3g}); use a world with p_slip=0, or MESC-IRL for stochastic worlds"
+        )
+
+
+def _as_number(name, value, *, low=None, allow_none=False):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number (got {value!r})")
+    x = float(value)
+    if not np.isfinite(x):
+        raise ValueError(f"{name} must be finite (got {x})")
+    if low is not None and x < low:
+        raise ValueError(f"{name} must be >= {low} (got {x})")
+    return x
+
+
+def _as_count(name, value, *, low=1, allow_none=False):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be an integer (got {value!r})")
+    if int(value) < low:
+        raise ValueError(f"{name} must be an integer >= {low} (got {int(value)})")
+    return int(value)
+
+
+def _candidate_mask(candidates, n_features):
+    if candidates is None:
+        return np.ones(n_features, dtype=bool)
+    arr = np.asarray(candidates)
+    if arr.dtype == bool:
+        if arr.shape != (n_features,):
+            raise ValueError(f"candidates as a mask must have shape ({n_features},) (got {arr.shape})")
+        return arr.copy()
+    if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise TypeError(f"candidates must be feature indices or a boolean mask (got dtype {arr.dtype})")
+    if arr.size and (arr.min() < 0 or arr.max() >= n_features):
+        raise ValueError(f"candidates must be feature indices in [0, {n_features}) (got {int(arr.max() if arr.max() >= n_features else arr.min())})")
+    mask = np.zeros(n_features, dtype=bool)
+    mask[arr] = True
+    return mask
+
+
+# --------------------------------------------------------------------------- model pieces
+
+
+class _Transitions:
+    """The live transitions of a deterministic MDP and the features each one has."""
+
+    def __init__(self, mdp):
+        S, A, K = mdp.probs.shape
+        feats = mdp.features
+        s_idx, a_idx, k_idx = np.nonzero((mdp.probs > 0) & ~mdp.terminal[:, None, None])
+        self.src = s_idx
+        self.act = a_idx
+        self.dst = mdp.next_states[s_idx, a_idx, k_idx]
+        self.prob = mdp.probs[s_idx, a_idx, k_idx]
+        phi = feats.source[self.src] + feats.action[self.act] + feats.destination[self.dst]
+        self.has = (sp.csr_array(phi) != 0).toarray()  # (E, F) bool
+        self.start_has = (feats.destination != 0).toarray()  # (S, F): occupying s at t = 0
+        n_e = self.src.size
+        self.scatter = sp.csr_array((np.ones(n_e), (self.dst, np.arange(n_e))), shape=(S, n_e))
+        self.terminal = mdp.terminal
+
+    def accrual(self, policy, start):
+        """A[c] = P(a trajectory violates c) under the time-indexed ``policy`` (Algorithm 1)."""
+        has = self.has.astype(np.float64)
+        d = start.copy()
+        acc = start[:, None] * self.start_has
+        done = np.zeros(has.shape[1])
+        for t in range(policy.shape[0]):
+            w = policy[t, self.src, self.act] * self.prob  # P(a, s' | s) for each live transition
+            acc_src = acc[self.src]
+            d_src = d[self.src]
+            contrib = w[:, None] * (acc_src + (d_src[:, None] - acc_src) * has)
+            acc = self.scatter @ contrib
+            d = self.scatter @ (w * d_src)
+            if self.terminal.any():
+                done += acc[self.terminal].sum(axis=0)
+                acc[self.terminal] = 0.0
+                d[self.terminal] = 0.0
+        return np.clip(done + acc.sum(axis=0), 0.0, 1.0)
+
+
+def _violated(trajs, mdp, trans_has_lookup):
+    """Features that some demonstration has (on a transition, or by occupying its first state)."""
+    feats = mdp.features
+    hit = np.zeros(mdp.n_features, dtype=bool)
+    for s, a in trajs:
+        hit |= np.asarray((feats.destination[[int(s[0])]] != 0).toarray()[0])
+        n = a.size if s.size > a.size else s.size - 1
+        for t in range(n):
+            key = (int(s[t]), int(a[t]), int(s[t + 1]))
+            row = trans_has_lookup.get(key)
+            if row is None:
+                raise ValueError(
+                    f"a demonstration takes action {key[1]} in state {key[0]} to state {key[2]}, "
+                    "a transition the MDP does not allow"
+                )
+            hit |= row
+    return hit
+
+
+def _log_likelihoods(trajs, mdp, log_policy):
+    """log P_C(tau_i) = log start(s_0) + sum_t log pi_t(a_t | s_t) (deterministic transitions)."""
+    out = np.empty(len(trajs))
+    H = log_policy.shape[0]
+    with np.errstate(divide="ignore"):
+        log_start = np.log(mdp.start)
+    for i, (s, a) in enumerate(trajs):
+        n = min(a.size, s.size - 1) if s.size > a.size else a.size
+        if n > H:
+            raise ValueError(
+                f"demonstration {i} takes {n} steps, more than the horizon {H}; "
+                "pass a horizon at least as long as the longest demonstration"
+            )
+        out[i] = log_start[s[0]] + log_policy[np.arange(n), s[:n], a[:n]].sum()
+    return out
+
+
+def _empirical_entropy(trajs):
+    keys = {}
+    for s, a in trajs:
+        k = (s.tobytes(), a.tobytes())
+        keys[k] = keys.get(k, 0) + 1
+    p = np.array(list(keys.values()), dtype=np.float64) / len(trajs)
+    return float(-np.sum(p * np.log(p)))
+
+
+# --------------------------------------------------------------------------- result
+
+
+@dataclass(frozen=True, eq=False)
+class HardConstraintResult:
+    """Hard constraints inferred by :func:`infer_hard_constraints`, in the order they were added.
+
+    Attributes
+    ----------
+    constraints : ndarray of int, shape (n_constraints,)
+        Feature indices of the inferred constraints, most likely first.
+    names : tuple of str
+        Their feature names.
+    eliminated_mass : ndarray, shape (n_constraints,)
+        ``A_c``: the share of the model's remaining trajectory mass each
+        constraint removed when it was added.
+    kl : ndarray, shape (n_constraints,)
+        ``KL(p_D || P_C)`` (nats) after each addition.
+    kl_initial : float
+        The divergence of the unconstrained nominal model.
+    log_likelihood : ndarray, shape (n_constraints,)
+        Mean log-likelihood of the demonstrations after each addition.
+    mask : ndarray of bool, shape (n_features,)
+        True on the inferred constraints.
+    stop_reason : str
+        ``"kl_decrease"``, ``"kl_threshold"``, ``"no_candidate"`` or ``"max_constraints"``.
+    horizon : int
+        Horizon of the trajectory distribution.
+    n_iter : int
+        Greedy steps taken (candidates evaluated for addition).
+    """
+
+    constraints: np.ndarray
+    names: tuple
+    eliminated_mass: np.ndarray
+    kl: np.ndarray
+    kl_initial: float
+    log_likelihood: np.ndarray
+    mask: np.ndarray
+    stop_reason: str
+    horizon: int
+    n_iter: int
+
+    @property
+    def n_constraints(self) -> int:
+        """Number of inferred constraints."""
+        return int(self.constraints.size)
+
+    def penalties(self, penalty=_HARD_PENALTY):
+        """Penalty vector putting ``penalty`` on each inferred constraint, shape (n_features,).
+
+        ``mdp.penalised(result.penalties())`` is the inferred constrained MDP.
+        """
+        penalty = _as_number("penalty", penalty, low=0.0)
+        return np.where(self.mask, penalty, 0.0)
+
+
+# --------------------------------------------------------------------------- algorithm
+
+
+def infer_hard_constraints(
+    mdp,
+    demonstrations,
+    *,
+    horizon=None,
+    candidates=None,
+    min_kl_decrease=0.1,
+    kl_threshold=None,
+    max_constraints=None,
+):
+    """Greedy maximum-likelihood inference of hard constraints (Scobee & Sastry, 2020).
+
+    Parameters
+    ----------
+    mdp : MDP
+        The nominal MDP, deterministic (every non-terminal state-action pair
+        has one successor), with transition features; each feature is a
+        candidate constraint. Its discount is not used: the method's
+        likelihood is that of undiscounted finite-horizon trajectories.
+    demonstrations : Demonstrations or sequence
+        Demonstrated trajectories in the true constrained world: a
+        :class:`~irl.demonstrations.Demonstrations` set, or a sequence of
+        objects with integer arrays ``.states`` and ``.actions`` (one more
+        state than actions), ``(states, actions)`` pairs, or dicts with
+        ``state_seq`` and ``action_seq`` (the paper's JSON files).
+    horizon : int, optional
+        Length ``T`` of the model's trajectories; at least the longest
+        demonstration. Default: twice the longest demonstration.
+    candidates : array_like of int or bool, optional
+        Features that may become constraints (indices or a mask); default all.
+    min_kl_decrease : float, optional
+        Stop when adding the best admissible candidate would lower the
+        trajectory KL divergence by less than this (nats; default 0.1).
+    kl_threshold : float, optional
+        Also stop once the KL divergence is at most this (default: no such rule).
+    max_constraints : int, optional
+        Upper bound on the number of constraints (default: no bound beyond
+        the number of candidates).
+
+    Returns
+    -------
+    HardConstraintResult
+
+    Raises
+    ------
+    TypeError
+        If ``mdp`` is not an :class:`~irl.mdp.MDP` or has no features.
+    ValueError
+        If the MDP is not deterministic, there is no demonstration, a
+        demonstration leaves the MDP's transitions or is longer than the horizon.
+
+    Notes
+    -----
+    A candidate is admissible if no demonstration has its feature: constraints
+    that a demonstration violates would make the demonstrations impossible
+    (likelihood zero). Constraints are imposed by a penalty of ``1e4`` on
+    their features, which gives forbidden trajectories a probability of
+    exactly zero in double precision. The step's KL decrease is
+    ``-log(1 - A_c)`` with ``A_c`` the probability mass of trajectories that
+    violate ``c`` under the current model; ties are broken by the lower
+    feature index.
+
+    Examples
+    --------
+    >>> from irl.gridworld import GridWorld
+    >>> world = GridWorld(3, 0, 2, p_slip=0.0, discount=1.0)
+    >>> demo = ([0, 3, 4, 5, 2], [2, 1, 1, 3])  # around the middle of the bottom row
+    >>> res = infer_hard_constraints(world.nominal_mdp, [demo], horizon=6)
+    >>> res.names[0]
+    'state 1'
+    """
+    if not isinstance(mdp, MDP):
+        raise TypeError(f"mdp must be an irl.MDP (got {type(mdp).__name__})")
+    if mdp.features is None:
+        raise TypeError("mdp must have transition features: each feature is a candidate constraint")
+    _check_deterministic(mdp)
+    trajs = _as_trajectories(demonstrations, mdp.n_states, mdp.n_actions)
+    longest = max(min(a.size, s.size - 1) if s.size > a.size else a.size for s, a in trajs)
+    if horizon is None:
+        horizon = max(1, 2 * longest)
+    horizon = _as_count("horizon", horizon)
+    if horizon < longest:
+        raise ValueError(
+            f"horizon must be at least the longest demonstration ({longest} steps) (got {horizon})"
+        )
+    min_kl_decrease = _as_number("min_kl_decrease", min_kl_decrease, low=0.0)
+    kl_threshold = _as_number("kl_threshold", kl_threshold, low=0.0, allow_none=True)
+    max_constraints = _as_count("max_constraints", max_constraints, low=0, allow_none=True)
+    cand = _candidate_mask(candidates, mdp.n_features)
+
+    base = mdp.replace(discount=1.0)
+    trans = _Transitions(base)
+    lookup = {
+        (int(s), int(a), int(d)): trans.has[e] for e, (s, a, d) in enumerate(zip(trans.src, trans.act, trans.dst))
+    }
+    admissible = cand & ~_violated(trajs, base, lookup)
+    entropy = _empirical_entropy(trajs)
+    names = base.features.names
+
+    chosen: list[int] = []
+    masses: list[float] = []
+    kls: list[float] = []
+    lls: list[float] = []
+    penalties = np.zeros(mdp.n_features)
+
+    def fit_model(pen):
+        model = base.penalised(pen) if pen.any() else base
+        res = soft_value_iteration(model, horizon=horizon)
+        log_pol = res.q_values - res.values[:-1, :, None]
+        ll = _log_likelihoods(trajs, model, log_pol)
+        return res.policy, float(ll.mean())
+
+    policy, mean_ll = fit_model(penalties)
+    kl_initial = -entropy - mean_ll
+    kl_now = kl_initial
+    stop = "no_candidate"
+    limit = int(admissible.sum()) if max_constraints is None else min(max_constraints, int(admissible.sum()))
+    n_iter = 0
+    for _ in range(int(admissible.sum()) + 1):
+        if kl_threshold is not None and kl_now <= kl_threshold:
+            stop = "kl_threshold"
+            break
+        if len(chosen) >= limit:
+            stop = "max_constraints" if max_constraints is not None and len(chosen) >= max_constraints else "no_candidate"
+            break
+        n_iter += 1
+        mass = trans.accrual(policy, base.start)
+        score = np.where(admissible, mass, -np.inf)
+        best = int(np.argmax(score))
+        a_best = float(mass[best])
+        if not np.isfinite(score[best]) or a_best <= 0.0:
+            stop = "no_candidate"
+            break
+        decrease = -np.log1p(-a_best) if a_best < 1.0 else np.inf
+        if decrease < min_kl_decrease:
+            stop = "kl_decrease"
+            break
+        penalties[best] = _HARD_PENALTY
+        admissible[best] = False
+        policy, mean_ll = fit_model(penalties)
+        kl_now = -entropy - mean_ll
+        chosen.append(best)
+        masses.append(a_best)
+        kls.append(kl_now)
+        lls.append(mean_ll)
+        logger.debug("added %s (eliminated mass %.4g, KL %.4g)", names[best], a_best, kl_now)
+    else:  # pragma: no cover - the loop always breaks: each pass adds a candidate or stops
+        warnings.warn("constraint inference stopped without a stopping rule firing", RuntimeWarning, stacklevel=2)
+
+    mask = np.zeros(mdp.n_features, dtype=bool)
+    mask[chosen] = True
+    return HardConstraintResult(
+        constraints=np.array(chosen, dtype=np.int64),
+        names=tuple(names[c] for c in chosen),
+        eliminated_mass=np.array(masses),
+        kl=np.array(kls),
+        kl_initial=float(kl_initial),
+        log_likelihood=np.array(lls),
+        mask=mask,
+        stop_reason=stop,
+        horizon=horizon,
+        n_iter=n_iter,
+    )
