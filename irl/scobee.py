@@ -303,6 +303,33 @@ class HardConstraintResult:
         penalty = _as_number("penalty", penalty, low=0.0)
         return np.where(self.mask, penalty, 0.0)
 
+    def policy(self, mdp):
+        """The inferred model's policy: maximum entropy in ``mdp`` with the constraints imposed.
+
+        Parameters
+        ----------
+        mdp : MDP
+            The nominal MDP the constraints were inferred in.
+
+        Returns
+        -------
+        ndarray, shape (horizon, n_states, n_actions)
+            Time-indexed policy of the undiscounted finite-horizon soft value
+            iteration; under it every trajectory that violates an inferred
+            constraint has probability zero. Sample it with
+            :func:`irl.demonstrations.sample_trajectories` and
+            ``max_steps=result.horizon``.
+        """
+        if not isinstance(mdp, MDP) or mdp.features is None:
+            raise TypeError(f"mdp must be an irl.MDP with features (got {type(mdp).__name__})")
+        if mdp.n_features != self.mask.size:
+            raise ValueError(
+                f"mdp must have the {self.mask.size} features the constraints were inferred on "
+                f"(got {mdp.n_features})"
+            )
+        model = mdp.replace(discount=1.0).penalised(self.penalties())
+        return soft_value_iteration(model, horizon=self.horizon).policy
+
 
 # --------------------------------------------------------------------------- algorithm
 

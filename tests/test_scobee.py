@@ -242,3 +242,24 @@ def test_reproduces_the_original_on_the_paper_world(shared_data):
     # five constraints, small (< 1 nat) for the last two.
     gains = -np.diff(np.concatenate([[res.kl_initial], res.kl]))
     assert np.all(gains[:5] > 4) and np.all(gains[5:] < 1)
+
+
+def test_policy_of_the_inferred_model_avoids_the_constraints():
+    world = small_world()
+    mdp = world.nominal_mdp
+    demos = [([0, 3, 4, 5, 2], [2, 1, 1, 3])]
+    res = infer_hard_constraints(mdp, demos, horizon=6)
+    pol = res.policy(mdp)
+    assert pol.shape == (6, 9, 8)
+    np.testing.assert_allclose(pol.sum(axis=2), 1.0)
+    # Entering a constrained state has probability zero at every step.
+    forbidden_states = [int(c) for c in res.constraints if c < 9]
+    assert forbidden_states
+    for s in range(9):
+        for a in range(8):
+            if int(mdp.next_states[s, a, 0]) in forbidden_states and not mdp.terminal[s]:
+                assert np.all(pol[:, s, a] == 0.0)
+    with pytest.raises(TypeError, match="irl.MDP with features"):
+        res.policy(world)
+    with pytest.raises(ValueError, match="features the constraints were inferred on"):
+        res.policy(GridWorld(4, 0, 3, p_slip=0.0).nominal_mdp)
