@@ -11,10 +11,16 @@ from .model import (
     distance_matrix,
     feedback_matrix,
 )
+from .simulate import FixedTime, SimulationResult, Threshold, decide, simulate
 from .closed_form import ClosedFormAccuracyWarning, choice_probabilities, preference_moments
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 
 __all__ = [
+    "FixedTime",
+    "SimulationResult",
+    "Threshold",
+    "decide",
+    "simulate",
     "ClosedFormAccuracyWarning",
     "choice_probabilities",
     "preference_moments",

@@ -1,0 +1,454 @@
+"""Compiled kernels of the MDFT simulation engine.
+
+Nothing here validates its input: :mod:`mdft.simulate` checks and converts
+everything once and then calls these functions. Conventions:
+
+* ``state`` is a ``uint64`` array of length 4, the state of one xoshiro256++
+  stream, advanced in place. ``states`` stacks one such row per chunk.
+* ``cuts`` holds the cumulative attention weights ``cumw`` scaled to
+  integers, ``cuts[j] = ceil(cumw[j] 2**53)``; attribute ``j`` is attended
+  when ``cumw[j-1] <= u < cumw[j]`` for the uniform ``u`` in [0, 1) of one
+  53-bit draw (no draw at all when there is a single attribute).
+* ``bounds`` has ``n_chunks + 1`` entries: chunk ``c`` runs trials
+  ``bounds[c] <= k < bounds[c + 1]`` with the stream ``states[c]``.
+
+Random numbers
+--------------
+The kernels carry their own generator, xoshiro256++ (Blackman & Vigna), so
+that a draw is a few inlined integer operations instead of an indirect call
+into NumPy's bit generator, and so that a chunk's stream is just four words
+that the public layer draws from the caller's ``numpy.random.Generator``.
+Normal deviates come from a 256-layer ziggurat (Marsaglia & Tsang 2000) on
+that stream. See ``docs/simulation.md`` for the reasons.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import prange
+
+from ._numba import JIT_OPTIONS, njit, njit_parallel
+
+# The per-draw helpers are inlined into the kernels at numba's IR level. Left
+# as separate compiled functions they cost an atomic reference-count update
+# of the state array on every call, which doubles the price of a normal draw.
+njit_inline = numba.njit(inline="always", **JIT_OPTIONS)
+
+# ---------------------------------------------------------------- xoshiro256++
+_SH11 = np.uint64(11)
+_SH17 = np.uint64(17)
+_ROT23_L = np.uint64(23)
+_ROT23_R = np.uint64(41)
+_ROT45_L = np.uint64(45)
+_ROT45_R = np.uint64(19)
+_SH8 = np.uint64(8)
+_LOW8 = np.uint64(0xFF)
+_BIT = np.uint64(1)
+_TWO_M53 = 2.0**-53
+
+
+@njit_inline
+def next_u64(state):
+    """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
+    s0 = state[0]
+    s1 = state[1]
+    s2 = state[2]
+    s3 = state[3]
+    t = s0 + s3
+    result = ((t << _ROT23_L) | (t >> _ROT23_R)) + s0
+    t = s1 << _SH17
+    s2 ^= s0
+    s3 ^= s1
+    s1 ^= s2
+    s0 ^= s3
+    s2 ^= t
+    s3 = (s3 << _ROT45_L) | (s3 >> _ROT45_R)
+    state[0] = s0
+    state[1] = s1
+    state[2] = s2
+    state[3] = s3
+    return result
+
+
+@njit_inline
+def next_double(state):
+    """A uniform double in [0, 1) with 53 random bits."""
+    return np.float64(next_u64(state) >> _SH11) * _TWO_M53
+
+
+# ---------------------------------------------------------------- ziggurat
+def _ziggurat_tables(n_layers=256, r=3.6541528853610088, v=0.00492867323399):
+    """Layer edges ``x`` and heights ``f(x) = exp(-x**2/2)`` of the normal ziggurat.
+
+    Layer 0 is the base strip (the rectangle ``[0, r] x [0, f(r)]`` plus the
+    tail beyond ``r``), given the width ``v / f(r)`` so that its area is
+    ``v`` like every other layer. Layer ``i >= 1`` is the rectangle
+    ``[0, x[i]] x [f(x[i]), f(x[i+1])]``; ``x[n_layers] = 0``.
+    """
+    x = np.empty(n_layers + 1)
+    x[0] = v / math.exp(-0.5 * r * r)
+    x[1] = r
+    for i in range(1, n_layers - 1):
+        x[i + 1] = math.sqrt(-2.0 * math.log(v / x[i] + math.exp(-0.5 * x[i] * x[i])))
+    x[n_layers] = 0.0
+    return x, np.exp(-0.5 * x * x)
+
+
+_ZX, _ZF = _ziggurat_tables()
+_ZR = 3.6541528853610088
+
+
+@njit_inline
+def standard_normal(state):
+    """A standard normal deviate from the stream ``state`` (ziggurat method).
+
+    The first 64-bit word gives the layer (bits 0-7), the sign (bit 8) and a
+    53-bit uniform (bits 11-63); about 99% of the calls use that word only.
+    """
+    # A rejection sampler: each pass accepts with probability > 0.98, so the
+    # bound on the number of passes is never reached in practice.
+    for _ in range(1_000_000):
+        u = next_u64(state)
+        i = np.intp(u & _LOW8)
+        # +1.0 or -1.0, computed without a branch (the sign is unpredictable).
+        sign = 1.0 - 2.0 * np.float64((u >> _SH8) & _BIT)
+        z = np.float64(u >> _SH11) * _TWO_M53 * _ZX[i]
+        if z < _ZX[i + 1]:
+            return sign * z
+        if i == 0:
+            # Tail beyond r (Marsaglia 1964): exponential proposals, accepted
+            # with probability exp(-a**2 / 2).
+            for _ in range(1_000_000):
+                a = -math.log(1.0 - next_double(state)) / _ZR
+                b = -math.log(1.0 - next_double(state))
+                if b + b > a * a:
+                    return sign * (_ZR + a)
+        else:
+            y = _ZF[i] + next_double(state) * (_ZF[i + 1] - _ZF[i])
+            if y < math.exp(-0.5 * z * z):
+                return sign * z
+    return 0.0
+
+
+# ---------------------------------------------------------------- small helpers
+@njit_inline
+def draw_attribute(state, cuts):
+    """Index of the attended attribute for one uniform ``u = x 2**-53``.
+
+    ``cuts[q] = ceil(cumw[q] 2**53)`` for the cumulative weights ``cumw``, so
+    that ``x >= cuts[q]`` exactly when ``u >= cumw[q]``; the index is the
+    number of such ``q < J - 1``, i.e. the first ``j`` with ``u < cumw[j]``.
+    It is counted with integer arithmetic only (``1 + ((x - c) >> 63)`` is 1
+    when ``x >= c`` and 0 otherwise): the outcome is random, and a branch or
+    a floating-point comparison on it would be mispredicted half of the time.
+    No draw is made for a single attribute.
+    """
+    n_attributes = cuts.shape[0]
+    if n_attributes == 1:
+        return 0
+    x = np.int64(next_u64(state) >> _SH11)
+    j = 0
+    for q in range(n_attributes - 1):
+        j += 1 + ((x - cuts[q]) >> 63)
+    return j
+
+
+@njit_inline
+def argmax_random_ties(P, state):
+    """Index of the largest entry of ``P``; exact ties broken uniformly at random.
+
+    A uniform is drawn only when there is a tie: among the ``k`` tied indices
+    (in increasing order) the one at position ``floor(u * k)`` is returned.
+    """
+    n = P.shape[0]
+    best = P[0]
+    index = 0
+    n_tied = 1
+    for i in range(1, n):
+        if P[i] > best:
+            best = P[i]
+            index = i
+            n_tied = 1
+        elif P[i] == best:
+            n_tied += 1
+    if n_tied == 1:
+        return index
+    pick = np.intp(next_double(state) * n_tied)
+    seen = 0
+    for i in range(n):
+        if P[i] == best:
+            if seen == pick:
+                return i
+            seen += 1
+    return index
+
+
+# ---------------------------------------------------------------- plain dynamics
+@njit
+def plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_threshold,
+                P, P_next, eps, trajectory, record):
+    """One trial of the step-by-step dynamics ``P(t) = S P(t-1) + C (M W(t) + eps(t))``.
+
+    Per step the draws are: the attended attribute (one uniform, none for a
+    single attribute), then ``n_options`` normals (none when ``noise_sd`` is
+    0). With ``use_threshold`` the trial stops at the first step where some
+    preference reaches ``theta`` and chooses the largest preference;
+    otherwise it runs ``n_steps`` steps and chooses ``argmax P(n_steps)``.
+    Ties are broken at random. Returns ``(choice, step)``; ``(-1, -1)`` for a
+    threshold trial still undecided after ``n_steps`` steps. With ``record``
+    the preferences ``P(0..)`` are written to the rows of ``trajectory``.
+    """
+    n = P0.shape[0]
+    for i in range(n):
+        P[i] = P0[i]
+    if record:
+        for i in range(n):
+            trajectory[0, i] = P[i]
+    for t in range(1, n_steps + 1):
+        j = draw_attribute(state, cuts)
+        if noise_sd > 0.0:
+            for i in range(n):
+                eps[i] = noise_sd * standard_normal(state)
+        for i in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += S[i, k] * P[k]
+            acc += CM[i, j]
+            if noise_sd > 0.0:
+                for k in range(n):
+                    acc += C[i, k] * eps[k]
+            P_next[i] = acc
+        reached = False
+        for i in range(n):
+            P[i] = P_next[i]
+            if P[i] >= theta:
+                reached = True
+        if record:
+            for i in range(n):
+                trajectory[t, i] = P[i]
+        if use_threshold and reached:
+            return argmax_random_ties(P, state), t
+    if use_threshold:
+        return -1, -1
+    return argmax_random_ties(P, state), n_steps
+
+
+@njit_parallel
+def plain_chunks(states, bounds, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                 use_threshold, choices, steps):
+    """Run trials ``bounds[0] .. bounds[-1]`` with :func:`plain_trial`, one stream per chunk.
+
+    Writes ``choices[k]`` and ``steps[k]`` for every trial ``k`` of the range
+    (indices relative to ``bounds[0]``).
+    """
+    n_chunks = bounds.shape[0] - 1
+    n = P0.shape[0]
+    first = bounds[0]
+    for c in prange(n_chunks):
+        state = states[c]
+        P = np.empty(n)
+        P_next = np.empty(n)
+        eps = np.empty(n)
+        dummy = np.empty((1, n))
+        for k in range(bounds[c], bounds[c + 1]):
+            choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                       use_threshold, P, P_next, eps, dummy, False)
+            choices[k - first] = choice
+            steps[k - first] = step
+
+
+@njit
+def plain_recorded(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_threshold,
+                   trajectories, choices, steps):
+    """Run ``trajectories.shape[0]`` trials serially on one stream, recording each one."""
+    n = P0.shape[0]
+    P = np.empty(n)
+    P_next = np.empty(n)
+    eps = np.empty(n)
+    for k in range(trajectories.shape[0]):
+        choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                   use_threshold, P, P_next, eps, trajectories[k], True)
+        choices[k] = choice
+        steps[k] = step
+
+
+# ---------------------------------------------------------------- fixed-time shortcut
+@njit
+def attention_table(S, CM, n_steps):
+    """``table[k, j, :] = S^k C M e_j`` for ``k < n_steps``: shape (n_steps, J, n)."""
+    n, J = CM.shape
+    table = np.empty((n_steps, J, n))
+    for j in range(J):
+        for i in range(n):
+            table[0, j, i] = CM[i, j]
+    for k in range(1, n_steps):
+        for j in range(J):
+            for i in range(n):
+                acc = 0.0
+                for q in range(n):
+                    acc += S[i, q] * table[k - 1, j, q]
+                table[k, j, i] = acc
+    return table
+
+
+@njit
+def block_table(table, block_size):
+    """Sums of ``table`` rows over blocks of steps, one per attention pattern.
+
+    Steps ``t = 0 .. T-1`` (step ``t + 1`` of the deliberation) are grouped in
+    blocks of ``block_size`` consecutive steps (the last block may be
+    shorter). For block ``m`` and the attributes ``j_0, j_1, ...`` attended in
+    its steps, the pattern index is ``p = (((j_0) J + j_1) J + ...)`` and
+
+        blocks[m, p] = sum_s table[T - 1 - t_s, j_s],
+
+    the contribution of those steps to ``P(T)``. Shape (n_blocks, J**block_size, n).
+    """
+    n_steps, J, n = table.shape
+    n_blocks = (n_steps + block_size - 1) // block_size
+    n_patterns = J**block_size
+    blocks = np.zeros((n_blocks, n_patterns, n))
+    for m in range(n_blocks):
+        first = m * block_size
+        size = min(block_size, n_steps - first)
+        for p in range(J**size):
+            rest = p
+            # Digits of p from the last step of the block back to the first.
+            for s in range(size - 1, -1, -1):
+                j = rest % J
+                rest //= J
+                lag = n_steps - 1 - (first + s)
+                for i in range(n):
+                    blocks[m, p, i] += table[lag, j, i]
+    return blocks
+
+
+@njit_inline
+def draw_pattern(state, cuts, cut0, size):
+    """Attention pattern of ``size`` consecutive steps, ``p = ((j_0 J + j_1) J + ...)``.
+
+    Draws ``size`` attributes exactly as :func:`draw_attribute` does. With two
+    attributes the single cut ``cut0 = cuts[0]`` is passed in a register: read
+    from the array at every step it would be reloaded after each store to the
+    stream state.
+    """
+    J = cuts.shape[0]
+    p = 0
+    if J == 2:
+        for _s in range(size):
+            x = np.int64(next_u64(state) >> _SH11)
+            p = 2 * p + 1 + ((x - cut0) >> 63)
+    else:
+        for _s in range(size):
+            p = p * J + draw_attribute(state, cuts)
+    return p
+
+
+@njit_parallel
+def fixed_time_chunks(states, bounds, blocks, block_size, n_steps, base, L, cuts, counts):
+    """Fixed-time trials through the exact linear decomposition of ``P(T)``.
+
+    ``P(T) = base + sum_t S^(T-t) C M e_(j_t) + L z`` with ``base = S^T P0``,
+    ``j_t`` the attribute attended at step ``t`` and ``z`` a standard normal
+    vector of length ``L.shape[1]`` (``L L^T`` is the covariance of the
+    accumulated noise). The attention sum is read from :func:`block_table`,
+    one lookup per block of steps. Per trial the draws are: ``n_steps``
+    attention uniforms in step order (none for one attribute), then
+    ``L.shape[1]`` normals, then one uniform only for a tie.
+    Adds the choices of chunk ``c`` to ``counts[c]``.
+    """
+    n_chunks = bounds.shape[0] - 1
+    n = base.shape[0]
+    rank = L.shape[1]
+    n_blocks = blocks.shape[0]
+    cut0 = cuts[0]
+    for c in prange(n_chunks):
+        state = states[c]
+        P = np.empty(n)
+        for _k in range(bounds[c], bounds[c + 1]):
+            for i in range(n):
+                P[i] = base[i]
+            for m in range(n_blocks):
+                p = draw_pattern(state, cuts, cut0, min(block_size, n_steps - m * block_size))
+                for i in range(n):
+                    P[i] += blocks[m, p, i]
+            for q in range(rank):
+                z = standard_normal(state)
+                for i in range(n):
+                    P[i] += L[i, q] * z
+            counts[c, argmax_random_ties(P, state)] += 1
+
+
+# ---------------------------------------------------------------- decisions for agents
+@njit
+def _one_decision(state, M, cuts, phi1, phi2, beta, noise_sd, n_steps, S, CM, P, P_next, eps):
+    n, J = M.shape
+    # Hotaling distance and feedback matrix S = I - phi2 exp(-phi1 D^2).
+    for a in range(n):
+        for b in range(n):
+            sq = 0.0
+            along = 0.0
+            for q in range(J):
+                d = M[a, q] - M[b, q]
+                sq += d * d
+                along += d
+            dist = sq + (beta - 1.0) * along * along / J
+            S[a, b] = (1.0 if a == b else 0.0) - phi2 * math.exp(-phi1 * dist * dist)
+    # Standard contrast: (C x)_i = (n x_i - sum x) / (n - 1).
+    scale = n / (n - 1.0)
+    for q in range(J):
+        mean = 0.0
+        for i in range(n):
+            mean += M[i, q]
+        mean /= n
+        for i in range(n):
+            CM[i, q] = scale * (M[i, q] - mean)
+    for i in range(n):
+        P[i] = 0.0
+    for _t in range(n_steps):
+        j = draw_attribute(state, cuts)
+        noise_mean = 0.0
+        if noise_sd > 0.0:
+            for i in range(n):
+                eps[i] = noise_sd * standard_normal(state)
+                noise_mean += eps[i]
+            noise_mean /= n
+        for i in range(n):
+            acc = CM[i, j]
+            for k in range(n):
+                acc += S[i, k] * P[k]
+            if noise_sd > 0.0:
+                acc += scale * (eps[i] - noise_mean)
+            P_next[i] = acc
+        for i in range(n):
+            P[i] = P_next[i]
+    return argmax_random_ties(P, state)
+
+
+@njit_parallel
+def decide_chunks(states, bounds, M, cuts, phi1, phi2, beta, noise_sd, n_steps, out):
+    """One fixed-time deliberation per decision ``d``: ``out[d]`` is the chosen option.
+
+    ``M`` has shape (n_decisions, n_options, n_attributes) and ``cuts`` shape
+    (n_decisions, n_attributes) or (1, n_attributes) (shared). The feedback
+    matrix is built from ``M[d]`` inside the kernel; ``P(0) = 0`` and the
+    contrast is the standard one.
+    """
+    n_chunks = bounds.shape[0] - 1
+    n = M.shape[1]
+    J = M.shape[2]
+    shared = cuts.shape[0] == 1
+    for c in prange(n_chunks):
+        state = states[c]
+        S = np.empty((n, n))
+        CM = np.empty((n, J))
+        P = np.empty(n)
+        P_next = np.empty(n)
+        eps = np.empty(n)
+        for d in range(bounds[c], bounds[c + 1]):
+            cw = cuts[0] if shared else cuts[d]
+            out[d] = _one_decision(state, M[d], cw, phi1, phi2, beta, noise_sd, n_steps,
+                                   S, CM, P, P_next, eps)

@@ -1,0 +1,621 @@
+"""Monte Carlo simulation of MDFT: stopping rules, :func:`simulate` and :func:`decide`.
+
+The dynamics (``docs/concepts.md``, Roe, Busemeyer & Townsend 2001) is
+
+    P(t) = S P(t-1) + C (M W(t) + eps(t)),   P(0) = P0,
+
+with ``W(t)`` the unit vector of the attribute attended at step ``t``
+(attribute ``j`` with probability ``w[j]``) and ``eps(t) ~ N(0, sigma2 I)``.
+A deliberation stops after a fixed number of steps (:class:`FixedTime`) or as
+soon as a preference reaches a threshold (:class:`Threshold`).
+
+Randomness: every call resolves ``rng`` with :func:`numpy.random.default_rng`,
+draws the states of a fixed number of independent streams from it (one per
+chunk of trials, see ``docs/simulation.md``) and runs the chunks in parallel.
+The result depends on the seed only, never on the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _kernels
+from ._validation import as_count, as_float_array, as_scalar
+from .model import MDFTModel
+
+__all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
+
+#: Number of chunks (independent random streams) the trials are split into.
+#: Fixed, so that the same seed gives the same result on any number of threads.
+N_CHUNKS = 64
+
+#: Largest number of decisions per chunk in :func:`decide`.
+_DECISIONS_PER_CHUNK = 256
+
+#: Largest attention table (n_steps * n_attributes * n_options doubles) the
+#: fixed-time shortcut may build; past it the step-by-step kernel is used.
+_MAX_TABLE_SIZE = 4_000_000
+
+#: Budget (in doubles) of the table of block sums of the fixed-time shortcut:
+#: 128 KiB keeps it in the level-2 cache, where a lookup per block is cheap.
+_BLOCK_TABLE_BUDGET = 16_384
+
+#: Most attention patterns per block (J ** block_size).
+_MAX_PATTERNS = 256
+
+#: Largest number of recorded trajectories.
+MAX_TRAJECTORIES = 1000
+
+#: Sentinel of ``choices`` and ``decision_steps`` for an undecided trial.
+UNDECIDED = -1
+
+
+# ---------------------------------------------------------------- stopping rules
+@dataclass(frozen=True)
+class FixedTime:
+    """Stop after a fixed number of deliberation steps and choose ``argmax P(n_steps)``.
+
+    Parameters
+    ----------
+    n_steps : int
+        Deliberation time ``T``, at least 1.
+
+    Examples
+    --------
+    >>> FixedTime(100)
+    FixedTime(n_steps=100)
+    """
+
+    n_steps: int
+
+    def __post_init__(self):
+        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps))
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """Stop as soon as some preference reaches ``theta``; give up after ``max_steps``.
+
+    Parameters
+    ----------
+    theta : float
+        Preference threshold, finite and > 0.
+    max_steps : int, default 10_000
+        Longest deliberation. A trial that has not reached the threshold after
+        ``max_steps`` steps is *undecided*: it is counted in
+        ``SimulationResult.n_undecided``, never dropped.
+
+    Notes
+    -----
+    The trial stops at the first step ``t >= 1`` with ``max_i P_i(t) >= theta``
+    and chooses the option with the largest preference at that step (when
+    several options cross in the same step, the one furthest past the
+    threshold); exact ties are broken uniformly at random.
+
+    Examples
+    --------
+    >>> Threshold(17.5)
+    Threshold(theta=17.5, max_steps=10000)
+    """
+
+    theta: float
+    max_steps: int = 10_000
+
+    def __post_init__(self):
+        object.__setattr__(self, "theta", as_scalar("theta", self.theta, low=0.0,
+                                                    low_inclusive=False))
+        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps))
+
+
+# ---------------------------------------------------------------- result
+@dataclass(frozen=True)
+class SimulationResult:
+    """Outcome of :func:`simulate`.
+
+    Attributes
+    ----------
+    probabilities : ndarray, shape (n_options,)
+        ``counts / n_samples``. With undecided trials these sum to
+        ``1 - p_undecided``.
+    counts : ndarray of int, shape (n_options,)
+        Number of trials that chose each option.
+    standard_errors : ndarray, shape (n_options,)
+        Binomial standard errors ``sqrt(p (1 - p) / n_samples)``.
+    n_samples : int
+        Number of simulated trials.
+    n_undecided : int
+        Trials that had not decided after ``max_steps`` (always 0 for
+        :class:`FixedTime`).
+    p_undecided : float
+        ``n_undecided / n_samples``.
+    stopping : FixedTime or Threshold
+        The stopping rule used.
+    method : str
+        ``"shortcut"`` (fixed time, exact linear decomposition of ``P(T)``) or
+        ``"step-by-step"``.
+    choices : ndarray of int, shape (n_samples,), or None
+        Threshold stopping only: the option chosen in each trial, ``-1`` for
+        an undecided trial.
+    decision_steps : ndarray of int, shape (n_samples,), or None
+        Threshold stopping only: the step ``1 <= t <= max_steps`` at which each
+        trial decided (its response time), ``-1`` for an undecided trial.
+    mean_response_times : ndarray, shape (n_options,), or None
+        Threshold stopping only: mean decision step of the trials that chose
+        each option (NaN for an option never chosen).
+    trajectories : ndarray, shape (n_trajectories, n_recorded + 1, n_options), or None
+        Preferences ``P(0), P(1), ...`` of the first ``n_trajectories`` trials.
+        For fixed time ``n_recorded = n_steps``; for threshold stopping it is the
+        longest of the recorded deliberations, and the rows after a trial's
+        decision are NaN.
+    trajectory_choices : ndarray of int, shape (n_trajectories,), or None
+        The options chosen in the recorded trials (``-1``: undecided).
+    """
+
+    probabilities: np.ndarray
+    counts: np.ndarray
+    standard_errors: np.ndarray
+    n_samples: int
+    n_undecided: int
+    p_undecided: float
+    stopping: FixedTime | Threshold
+    method: str
+    choices: np.ndarray | None = None
+    decision_steps: np.ndarray | None = None
+    mean_response_times: np.ndarray | None = None
+    trajectories: np.ndarray | None = None
+    trajectory_choices: np.ndarray | None = None
+
+    @property
+    def n_options(self) -> int:
+        return self.counts.shape[0]
+
+    def response_times(self, option: int) -> np.ndarray:
+        """Decision steps of the trials that chose ``option`` (threshold stopping).
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> res = mdft.simulate(model, 200, stopping=mdft.Threshold(5.0), rng=0)
+        >>> bool(res.response_times(0).min() >= 1)
+        True
+        """
+        self._need_threshold("response_times")
+        option = _option_index(option, self.n_options)
+        return self.decision_steps[self.choices == option]
+
+    def response_time_pmf(self) -> np.ndarray:
+        """Empirical ``pmf[t, i]``: fraction of trials that chose option ``i`` at step ``t + 1``.
+
+        Shape (max_steps, n_options); the entries sum to ``1 - p_undecided``.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> res = mdft.simulate(model, 200, stopping=mdft.Threshold(5.0, max_steps=500),
+        ...                     rng=0)
+        >>> res.response_time_pmf().shape
+        (500, 2)
+        """
+        self._need_threshold("response_time_pmf")
+        decided = self.choices >= 0
+        pmf = np.zeros((self.stopping.max_steps, self.n_options))
+        np.add.at(pmf, (self.decision_steps[decided] - 1, self.choices[decided]), 1.0)
+        return pmf / self.n_samples
+
+    def _need_threshold(self, what: str) -> None:
+        if not isinstance(self.stopping, Threshold):
+            raise ValueError(
+                f"{what} needs a result of threshold stopping (got stopping={self.stopping!r})"
+            )
+
+
+# ---------------------------------------------------------------- simulate
+def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> SimulationResult:
+    """Simulate ``n_samples`` independent deliberations of an MDFT model.
+
+    Parameters
+    ----------
+    model : MDFTModel
+        The model (``M``, ``w``, ``S``, ``C``, ``sigma2``, ``P0``).
+    n_samples : int
+        Number of trials, at least 1.
+    stopping : FixedTime or Threshold
+        The stopping rule.
+    rng : None, int, array_like or numpy.random.Generator, optional
+        Source of randomness, resolved with :func:`numpy.random.default_rng`.
+        The same seed gives bit-identical results whatever the number of numba
+        threads.
+    n_trajectories : int, default 0
+        Record the preference trajectories of the first ``n_trajectories``
+        trials (at most ``min(n_samples, 1000)``). They are simulated with the
+        plain step-by-step dynamics and counted like every other trial.
+
+    Returns
+    -------
+    SimulationResult
+
+    Notes
+    -----
+    Each step draws the attended attribute (``w``), then the noise
+    ``eps ~ N(0, sigma2 I)``, and updates ``P(t) = S P(t-1) + C (M W(t) + eps(t))``.
+    For fixed time the kernel uses the exact decomposition
+
+        P(T) = S^T P0 + sum_t S^(T-t) C M W(t) + xi,   xi ~ N(0, sigma2 sum_k S^k C C^T S^kT),
+
+    the noise term being a single Gaussian vector per trial (an identity in
+    distribution, not an approximation; ``docs/simulation.md``).
+    Ties of the largest preference are broken uniformly at random.
+
+    Examples
+    --------
+    The compromise effect: C = (2, 2) between A = (1, 3) and B = (3, 1).
+
+    >>> import mdft
+    >>> model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5],
+    ...                        phi1=0.022, phi2=0.05, beta=12.0)
+    >>> res = mdft.simulate(model, 20_000, stopping=mdft.FixedTime(100), rng=0)
+    >>> bool(res.probabilities[2] > res.probabilities[0])
+    True
+    >>> round(float(res.probabilities.sum() + res.p_undecided), 6)
+    1.0
+
+    Threshold stopping reports response times and undecided trials:
+
+    >>> res = mdft.simulate(model, 2_000, stopping=mdft.Threshold(17.5, max_steps=2_000),
+    ...                     rng=0)
+    >>> res.decision_steps.shape
+    (2000,)
+    """
+    if not isinstance(model, MDFTModel):
+        raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
+    n_samples = as_count("n_samples", n_samples)
+    if not isinstance(stopping, (FixedTime, Threshold)):
+        raise TypeError(
+            "stopping must be mdft.FixedTime(n_steps) or mdft.Threshold(theta, max_steps) "
+            f"(got {stopping!r})"
+        )
+    n_trajectories = as_count("n_trajectories", n_trajectories, low=0)
+    limit = min(n_samples, MAX_TRAJECTORIES)
+    if n_trajectories > limit:
+        raise ValueError(
+            f"n_trajectories must be <= min(n_samples, {MAX_TRAJECTORIES}) = {limit} "
+            f"(got {n_trajectories}); trajectories are meant for plotting a few trials"
+        )
+    threshold = isinstance(stopping, Threshold)
+    if threshold and np.max(model.P0) >= stopping.theta:
+        raise ValueError(
+            f"model.P0 must lie below the threshold theta={stopping.theta:g} "
+            f"(got max P0 = {np.max(model.P0):g}); the deliberation would end before it starts"
+        )
+    generator = np.random.default_rng(rng)
+    states = _stream_states(generator, N_CHUNKS + 1)
+    n_steps = stopping.max_steps if threshold else stopping.n_steps
+    theta = stopping.theta if threshold else math.inf
+    S = np.ascontiguousarray(model.S, dtype=np.float64)
+    C = np.ascontiguousarray(model.C, dtype=np.float64)
+    CM = np.ascontiguousarray(C @ model.M)
+    P0 = np.ascontiguousarray(model.P0, dtype=np.float64)
+    cuts = _attention_cuts(model.w)
+    noise_sd = math.sqrt(model.sigma2)
+    n = model.n_options
+
+    # The recorded trials: the plain dynamics on their own stream.
+    trajectories = trajectory_choices = None
+    rec_choices = np.empty(n_trajectories, dtype=np.int64)
+    rec_steps = np.empty(n_trajectories, dtype=np.int64)
+    if n_trajectories:
+        trajectories = np.full((n_trajectories, n_steps + 1, n), np.nan)
+        with np.errstate(over="ignore"):
+            _kernels.plain_recorded(states[N_CHUNKS], S, CM, C, noise_sd, cuts, P0, n_steps,
+                                    theta, threshold, trajectories, rec_choices, rec_steps)
+        if threshold:
+            longest = int(np.where(rec_steps < 0, n_steps, rec_steps).max())
+            trajectories = trajectories[:, : longest + 1]
+        trajectory_choices = _readonly(rec_choices.copy())
+        trajectories = _readonly(trajectories)
+
+    n_rest = n_samples - n_trajectories
+    bounds = n_trajectories + (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_rest) // N_CHUNKS
+    chunk_states = states[:N_CHUNKS]
+    counts = np.zeros(n, dtype=np.int64)
+    if n_trajectories:
+        counts += np.bincount(rec_choices[rec_choices >= 0], minlength=n)
+    shortcut = None if threshold else _fixed_time_shortcut(S, CM, C, P0, model.sigma2, n_steps)
+    if shortcut is not None:
+        method = "shortcut"
+        blocks, block_size, base, L = shortcut
+        chunk_counts = np.zeros((N_CHUNKS, n), dtype=np.int64)
+        with np.errstate(over="ignore"):
+            _kernels.fixed_time_chunks(chunk_states, bounds, blocks, block_size, n_steps, base,
+                                       L, cuts, chunk_counts)
+        counts += chunk_counts.sum(axis=0)
+        choices = steps = None
+    else:
+        method = "step-by-step"
+        choices = np.empty(n_samples, dtype=np.int64)
+        steps = np.empty(n_samples, dtype=np.int64)
+        choices[:n_trajectories] = rec_choices
+        steps[:n_trajectories] = rec_steps
+        with np.errstate(over="ignore"):
+            _kernels.plain_chunks(chunk_states, bounds, S, CM, C, noise_sd, cuts, P0, n_steps,
+                                  theta, threshold, choices[n_trajectories:],
+                                  steps[n_trajectories:])
+        counts += np.bincount(choices[n_trajectories:][choices[n_trajectories:] >= 0],
+                              minlength=n)
+        if not threshold:
+            choices = steps = None
+
+    n_undecided = int(n_samples - counts.sum())
+    probabilities = counts / n_samples
+    standard_errors = np.sqrt(probabilities * (1.0 - probabilities) / n_samples)
+    mean_rt = None
+    if threshold:
+        decided = choices >= 0
+        sums = np.bincount(choices[decided], weights=steps[decided], minlength=n)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_rt = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        choices, steps, mean_rt = _readonly(choices), _readonly(steps), _readonly(mean_rt)
+    return SimulationResult(
+        probabilities=_readonly(probabilities),
+        counts=_readonly(counts),
+        standard_errors=_readonly(standard_errors),
+        n_samples=n_samples,
+        n_undecided=n_undecided,
+        p_undecided=n_undecided / n_samples,
+        stopping=stopping,
+        method=method,
+        choices=choices,
+        decision_steps=steps,
+        mean_response_times=mean_rt,
+        trajectories=trajectories,
+        trajectory_choices=trajectory_choices,
+    )
+
+
+# ---------------------------------------------------------------- decide
+def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
+    """One fixed-time MDFT deliberation per decision, the model built inside the kernel.
+
+    The fast path for agents that choose among options at every step: no
+    :class:`MDFTModel` is built; the Hotaling distance, the feedback matrix
+    ``S`` and the standard contrast are computed from each ``M`` inside the
+    compiled kernel, ``P(0) = 0``, and one trial of ``n_steps`` steps decides.
+
+    Parameters
+    ----------
+    M : array_like, shape (n_options, n_attributes) or (n_decisions, n_options, n_attributes)
+        Evaluations of one decision, or of a batch of decisions.
+    w : array_like, shape (n_attributes,) or (n_decisions, n_attributes)
+        Attention weights, shared by the batch or one row per decision;
+        non-negative, each row summing to one.
+    phi1, phi2, beta : float
+        Parameters of the feedback matrix ``S = I - phi2 exp(-phi1 D**2)`` and
+        of Hotaling's distance ``D`` (``docs/concepts.md``), all >= 0.
+    sigma2 : float, default 1.0
+        Variance of the valence noise, >= 0.
+    n_steps : int
+        Deliberation time, at least 1.
+    rng : None, int, array_like or numpy.random.Generator, optional
+        Resolved with :func:`numpy.random.default_rng`. A batch is split into
+        chunks whose number depends on ``n_decisions`` only, so the result does
+        not depend on the number of threads.
+
+    Returns
+    -------
+    int or ndarray of int, shape (n_decisions,)
+        The chosen option(s).
+
+    Notes
+    -----
+    Equivalent in distribution to ``simulate(MDFTModel(M, w, ...), 1,
+    stopping=FixedTime(n_steps))`` for each decision, without building the
+    model. The spectral radius of ``S`` is not checked (see
+    ``docs/simulation.md``).
+
+    Examples
+    --------
+    >>> import mdft
+    >>> M = [[0.9, 0.1], [0.1, 0.9], [0.5, 0.5]]
+    >>> choice = mdft.decide(M, [0.5, 0.5], phi1=0.01, phi2=0.01, beta=2.0,
+    ...                      n_steps=100, rng=0)
+    >>> choice in (0, 1, 2)
+    True
+    >>> mdft.decide([M, M], [0.5, 0.5], phi1=0.01, phi2=0.01, beta=2.0,
+    ...             n_steps=100, rng=0).shape
+    (2,)
+    """
+    try:
+        Marr = np.asarray(M, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"M must be an array of real numbers (got {M!r})") from exc
+    if Marr.ndim not in (2, 3):
+        raise ValueError(
+            "M must have shape (n_options, n_attributes) or (n_decisions, n_options, "
+            f"n_attributes) (got shape {Marr.shape})"
+        )
+    single = Marr.ndim == 2
+    batch = np.ascontiguousarray(Marr[None] if single else Marr)
+    n_decisions, n_options, n_attributes = batch.shape
+    if n_decisions < 1:
+        raise ValueError(f"M must hold at least one decision (got shape {Marr.shape})")
+    if n_options < 2:
+        raise ValueError(
+            f"M must have at least 2 options (got shape {Marr.shape}); MDFT compares options"
+        )
+    if n_attributes < 1:
+        raise ValueError(f"M must have at least 1 attribute (got shape {Marr.shape})")
+    if not np.isfinite(batch).all():
+        raise ValueError("M must contain only finite values (got NaN or infinity in M)")
+    w_rows = _batch_attention(w, n_decisions, n_attributes)
+    phi1 = as_scalar("phi1", phi1, low=0.0)
+    phi2 = as_scalar("phi2", phi2, low=0.0)
+    beta = as_scalar("beta", beta, low=0.0)
+    sigma2 = as_scalar("sigma2", sigma2, low=0.0)
+    n_steps = as_count("n_steps", n_steps)
+    generator = np.random.default_rng(rng)
+    n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
+    n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))
+    states = _stream_states(generator, n_chunks)
+    bounds = (np.arange(n_chunks + 1, dtype=np.int64) * n_decisions) // n_chunks
+    cuts = _attention_cuts(w_rows)
+    out = np.empty(n_decisions, dtype=np.int64)
+    with np.errstate(over="ignore"):
+        _kernels.decide_chunks(states, bounds, batch, cuts, phi1, phi2, beta,
+                               math.sqrt(sigma2), n_steps, out)
+    return int(out[0]) if single else out
+
+
+# ---------------------------------------------------------------- helpers
+def _stream_states(generator: np.random.Generator, n_streams: int) -> np.ndarray:
+    """Draw the xoshiro256++ states of ``n_streams`` independent streams.
+
+    Each state is 256 bits taken from the caller's generator; an all-zero
+    state (the one state xoshiro cannot leave, probability 2**-256) is
+    replaced by a fixed non-zero word.
+    """
+    states = generator.integers(0, 2**64, size=(n_streams, 4), dtype=np.uint64,
+                                endpoint=False)
+    states[~states.any(axis=1), 0] = np.uint64(0x9E3779B97F4A7C15)
+    return states
+
+
+def _attention_cuts(w: np.ndarray) -> np.ndarray:
+    """Integer attention thresholds ``cuts = ceil(cumw 2**53)`` (along the last axis).
+
+    ``cumw`` is the cumulative sum of ``w`` with the entries from the last
+    positive weight on set to exactly 1, so that a zero-weight attribute at
+    the end is never attended, whatever the rounding of the sum. A 53-bit
+    draw ``x`` (uniform ``u = x 2**-53``) attends the first ``j`` with
+    ``u < cumw[j]``, i.e. with ``x < cuts[j]``. Works on one row
+    (n_attributes,) or on rows (k, n_attributes).
+    """
+    w = np.asarray(w, dtype=np.float64)
+    cumw = np.cumsum(w, axis=-1)
+    J = w.shape[-1]
+    last = J - 1 - np.argmax(w[..., ::-1] > 0, axis=-1)
+    cumw[np.arange(J) >= np.expand_dims(last, -1)] = 1.0
+    # cumw * 2**53 is exact (a power-of-two scaling) and at most 2**53.
+    return np.ascontiguousarray(np.ceil(cumw * 2.0**53).astype(np.int64))
+
+
+def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
+    """Precompute ``(blocks, block_size, base, L)`` of the fixed-time decomposition, or None.
+
+    ``blocks`` holds the block sums of ``table[k, j] = S^k C M e_j``
+    (:func:`mdft._kernels.block_table`), ``base = S^T P0`` and ``L`` (n, r)
+    satisfies ``L L^T = sigma2 sum_{k<T} S^k C C^T S^kT``. Returns None when
+    the table would be too large or when something overflows (then the
+    step-by-step kernel runs instead).
+    """
+    n, J = CM.shape
+    if n_steps * J * n > _MAX_TABLE_SIZE:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        table = _kernels.attention_table(S, CM, n_steps)
+        base = P0.copy()
+        if np.any(P0 != 0):
+            base = np.linalg.matrix_power(S, n_steps) @ P0
+        L = _noise_factor(S, C, sigma2, n_steps)
+    if not (np.isfinite(table).all() and np.isfinite(base).all() and np.isfinite(L).all()):
+        return None
+    block_size = _block_size(n_steps, J, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        blocks = _kernels.block_table(table, block_size)
+    if not np.isfinite(blocks).all():
+        return None
+    return blocks, block_size, np.ascontiguousarray(base), L
+
+
+def _block_size(n_steps: int, n_attributes: int, n_options: int) -> int:
+    """Steps per block of the attention lookup: the most whose table fits the budget.
+
+    With one attribute the attention is not random and one block spans all steps.
+    """
+    if n_attributes == 1:
+        return n_steps
+    best = 1
+    size = 2
+    while size <= n_steps and n_attributes**size <= _MAX_PATTERNS:
+        n_blocks = -(-n_steps // size)
+        if n_blocks * n_attributes**size * n_options > _BLOCK_TABLE_BUDGET:
+            break
+        best = size
+        size += 1
+    return best
+
+
+def _noise_factor(S, C, sigma2, n_steps):
+    """``L`` (n, r) with ``L L^T = sigma2 sum_{k<n_steps} S^k C C^T (S^k)^T``.
+
+    The sum is built by binary splitting, ``Sigma(a + m) = Sigma(a) + S^a
+    Sigma(m) S^aT``, in O(log n_steps) matrix products; ``L`` keeps the
+    eigenvectors whose eigenvalues exceed ``1e-13`` times the largest.
+    """
+    n = S.shape[0]
+    if sigma2 == 0.0:
+        return np.zeros((n, 0))
+    total = np.zeros((n, n))
+    S_prefix = np.eye(n)  # S^a for the steps already summed
+    S_block = S.copy()  # S^m for the current block length m = 2^b
+    sigma_block = C @ C.T  # Sigma(m)
+    remaining = n_steps
+    while remaining:
+        if remaining & 1:
+            total += S_prefix @ sigma_block @ S_prefix.T
+            S_prefix = S_prefix @ S_block
+        remaining >>= 1
+        if remaining:
+            sigma_block = sigma_block + S_block @ sigma_block @ S_block.T
+            S_block = S_block @ S_block
+    total = sigma2 * 0.5 * (total + total.T)
+    if not np.isfinite(total).all():
+        return np.full((n, 1), np.nan)
+    eigenvalues, vectors = np.linalg.eigh(total)
+    keep = eigenvalues > 1e-13 * max(eigenvalues.max(), 0.0)
+    return np.ascontiguousarray(vectors[:, keep] * np.sqrt(eigenvalues[keep]))
+
+
+def _batch_attention(w, n_decisions: int, n_attributes: int) -> np.ndarray:
+    """Validate ``w`` of :func:`decide`, vectorised: rows (n, n_attributes) summing to one."""
+    arr = as_float_array("w", w)
+    if arr.ndim == 1:
+        arr = arr[None]
+        shape_ok = arr.shape[1] == n_attributes
+    else:
+        shape_ok = arr.ndim == 2 and arr.shape == (n_decisions, n_attributes)
+    if not shape_ok:
+        raise ValueError(
+            f"w must have shape ({n_attributes},) or ({n_decisions}, {n_attributes}) to match "
+            f"M (got shape {np.shape(w)})"
+        )
+    if (arr < 0).any():
+        bad = arr[(arr < 0).any(axis=1)][0]
+        raise ValueError(f"w must be non-negative (got {bad.tolist()})")
+    totals = arr.sum(axis=1)
+    off = np.abs(totals - 1.0) > 1e-6
+    if off.any():
+        raise ValueError(
+            f"w must sum to 1 (got {totals[off][0]:.6g}); pass normalised attention weights"
+        )
+    return arr / totals[:, None]
+
+
+def _option_index(option, n_options: int) -> int:
+    if isinstance(option, bool) or not isinstance(option, (numbers.Integral, np.integer)):
+        raise TypeError(f"option must be an integer (got {option!r})")
+    if not 0 <= int(option) < n_options:
+        raise ValueError(f"option must lie in [0, {n_options - 1}] (got {option})")
+    return int(option)
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
