@@ -32,6 +32,18 @@ from .metrics import (
     visitation_kl_divergence,
 )
 from .gym import from_gymnasium
+from .demonstrations import Demonstrations, generate_demonstrations, sample_trajectories
+from .mesc import LearnedConstraint, MESCObjective, MESCResult, constraint_probability, mesc_irl
+from .io import (
+    load_demonstrations,
+    load_mdp,
+    load_mesc_result,
+    load_paper_demonstrations,
+    load_paper_worlds,
+    save_demonstrations,
+    save_mdp,
+    save_mesc_result,
+)
 from .scobee import HardConstraintResult, infer_hard_constraints
 
 __all__ = [
@@ -48,6 +60,22 @@ __all__ = [
     "soft_value_iteration",
     "state_action_visitation",
     "value_iteration",
+    "Demonstrations",
+    "generate_demonstrations",
+    "sample_trajectories",
+    "LearnedConstraint",
+    "MESCObjective",
+    "MESCResult",
+    "constraint_probability",
+    "mesc_irl",
+    "load_demonstrations",
+    "load_mdp",
+    "load_mesc_result",
+    "load_paper_demonstrations",
+    "load_paper_worlds",
+    "save_demonstrations",
+    "save_mdp",
+    "save_mesc_result",
     "HardConstraintScores",
     "SoftConstraintErrors",
     "false_discovery_rate",

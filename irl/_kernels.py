@@ -172,19 +172,74 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_policy(next_states, probs, r_bar, terminal, discount, horizon):
-    """Like :func:`soft_value_iteration_finite` but keeps only v[0] and the policy."""
+def soft_backward_into(next_states, probs, r_bar, terminal, discount, policy, demo_ptr, demo_s, demo_a):
+    """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
+
+    Demonstration transitions at step t are ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]``
+    (and ``demo_a``); their log-probabilities ``Q_t(s, a) - V_t(s)`` are summed
+    exactly (no underflow). Returns ``(v0, log_likelihood_sum)``. Keeps one (S, A)
+    buffer of Q-values only, so the memory is that of the policy.
+    """
     n_states, n_actions, _ = probs.shape
+    horizon = policy.shape[0]
     v_next = np.zeros(n_states)
     v = np.zeros(n_states)
     q = np.zeros((n_states, n_actions))
-    policy = np.zeros((horizon, n_states, n_actions))
+    loglik = 0.0
     for t in range(horizon - 1, -1, -1):
         _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q)
         _logsumexp_rows(q, terminal, v, policy[t])
+        for i in range(demo_ptr[t], demo_ptr[t + 1]):
+            loglik += q[demo_s[i], demo_a[i]] - v[demo_s[i]]
         for s in range(n_states):
             v_next[s] = v[s]
-    return v, policy
+    return v, loglik
+
+
+@njit
+def likelihood_adjoint(next_states, probs, terminal, discount, policy, demo_ptr, demo_s, demo_a, weight):
+    """Adjoint (forward) pass of the demonstrations' log-likelihood.
+
+    With c_t(s, a) the weighted count of demonstration transitions at step t,
+    the signed mass ``L_t(s, a) = c_t(s, a) + pi_t(a|s) (m_t(s) - c_t(s))`` with
+    ``m_{t+1}(s') = discount * sum_{s,a} L_t(s, a) P(s'|s, a)`` and ``m_0 = 0``
+    gives ``d loglik = sum_t sum_{s,a} L_t(s, a) d r_bar(s, a)``. Returns
+    ``(sa, dst)``: ``sa = sum_t L_t`` and ``dst[s'] = sum_t sum_{s,a} L_t(s, a) P(s'|s, a)``.
+    """
+    n_states, n_actions, n_succ = probs.shape
+    horizon = policy.shape[0]
+    sa = np.zeros((n_states, n_actions))
+    dst = np.zeros(n_states)
+    m = np.zeros(n_states)
+    m_next = np.zeros(n_states)
+    lam = np.zeros((n_states, n_actions))
+    for t in range(horizon):
+        for i in range(demo_ptr[t], demo_ptr[t + 1]):
+            m[demo_s[i]] -= weight
+        for s in range(n_states):
+            m_next[s] = 0.0
+            ms = m[s]
+            for a in range(n_actions):
+                lam[s, a] = 0.0 if terminal[s] else ms * policy[t, s, a]
+        for i in range(demo_ptr[t], demo_ptr[t + 1]):
+            lam[demo_s[i], demo_a[i]] += weight
+        for s in range(n_states):
+            if terminal[s]:
+                continue
+            for a in range(n_actions):
+                la = lam[s, a]
+                if la == 0.0:
+                    continue
+                sa[s, a] += la
+                for k in range(n_succ):
+                    p = probs[s, a, k]
+                    if p != 0.0:
+                        ns = next_states[s, a, k]
+                        dst[ns] += la * p
+                        m_next[ns] += discount * la * p
+        for s in range(n_states):
+            m[s] = m_next[s]
+    return sa, dst
 
 
 # ------------------------------------------------------------------ visitation
@@ -286,7 +341,7 @@ def sample_trajectories(next_states, probs, terminal, policy, time_indexed, star
     has transitions ``offsets[i]:offsets[i + 1]``.
     """
     n_policy_steps = policy.shape[0]
-    cap = n * max_steps
+    cap = n * 16
     states = np.empty(cap, dtype=np.int64)
     actions = np.empty(cap, dtype=np.int64)
     succ = np.empty(cap, dtype=np.int64)
@@ -304,6 +359,17 @@ def sample_trajectories(next_states, probs, terminal, policy, time_indexed, star
             a = _draw(row, rng.random())
             k = _draw(probs[s, a], rng.random())
             ns = next_states[s, a, k]
+            if pos == cap:
+                cap *= 2
+                grown = np.empty(cap, dtype=np.int64)
+                grown[:pos] = states[:pos]
+                states = grown
+                grown = np.empty(cap, dtype=np.int64)
+                grown[:pos] = actions[:pos]
+                actions = grown
+                grown = np.empty(cap, dtype=np.int64)
+                grown[:pos] = succ[:pos]
+                succ = grown
             states[pos] = s
             actions[pos] = a
             succ[pos] = ns

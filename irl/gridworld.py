@@ -88,7 +88,7 @@ class GridWorld:
     step_cost, goal_reward : float
         Nominal reward parameters (4 and 10 in the paper).
     discount : float
-        Discount of the MDPs built from the world (0.9 as in the paper's code).
+        Discount of the MDPs built from the world (default 1; see docs/irl.md, Decisions).
     boundary : {"clip", "stay"}
         What a move off the grid does.
 
@@ -123,7 +123,7 @@ class GridWorld:
     penalty: float = 50.0
     step_cost: float = 4.0
     goal_reward: float = 10.0
-    discount: float = 0.9
+    discount: float = 1.0
     boundary: str = "clip"
 
     def __post_init__(self):

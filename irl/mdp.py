@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -226,16 +227,24 @@ class TransitionFeatures:
         return self._projections(w)
 
     def _projections(self, w):
-        return (
-            np.asarray(self.source @ w, dtype=np.float64),
-            np.asarray(self.action @ w, dtype=np.float64),
-            np.asarray(self.destination @ w, dtype=np.float64),
+        return tuple(
+            np.zeros(m.shape[0]) if m.nnz == 0 else np.asarray(m @ w, dtype=np.float64)
+            for m in (self.source, self.action, self.destination)
         )
 
     def counts(self, d_src, d_act, d_dst):
         """Feature counts ``source.T d_src + action.T d_act + destination.T d_dst``, shape (n_features,)."""
-        return np.asarray(
-            self.source.T @ d_src + self.action.T @ d_act + self.destination.T @ d_dst, dtype=np.float64
+        out = np.zeros(self.n_features)
+        for mat_t, d in zip(self._transposed, (d_src, d_act, d_dst)):
+            if mat_t is not None:
+                out += mat_t @ d
+        return out
+
+    @cached_property
+    def _transposed(self):
+        # CSR copies of the transposed non-empty blocks: fast repeated counts
+        return tuple(
+            None if m.nnz == 0 else sp.csr_array(m.T) for m in (self.source, self.action, self.destination)
         )
 
     def phi(self, s, a, s_next):

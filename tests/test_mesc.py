@@ -1,0 +1,290 @@
+"""Tests of MESC-IRL, demonstrations and saving/loading."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from irl import (
+    Demonstrations,
+    GridWorld,
+    MESCObjective,
+    MESCResult,
+    constraint_probability,
+    generate_demonstrations,
+    load_demonstrations,
+    load_mdp,
+    load_mesc_result,
+    load_paper_demonstrations,
+    load_paper_worlds,
+    mesc_irl,
+    sample_trajectories,
+    save_demonstrations,
+    save_mdp,
+    soft_value_iteration,
+    state_action_visitation,
+)
+
+
+def small_world(p_slip=0.1, discount=1.0):
+    return GridWorld(
+        4, 0, 15, blue=[5], green=[10], constrained_states=[6], constrained_actions=["up_right"],
+        constrained_colours=["green"], p_slip=p_slip, discount=discount,
+    )
+
+
+@pytest.fixture(scope="module")
+def figure1():
+    return load_paper_worlds()[0]
+
+
+# ------------------------------------------------------------- the objective
+@pytest.mark.parametrize("p_slip,discount", [(0.1, 1.0), (0.2, 0.9), (0.0, 1.0)])
+def test_gradient_matches_finite_differences(p_slip, discount):
+    world = small_world(p_slip, discount)
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=1)
+    obj = MESCObjective(world.nominal_mdp, demos, horizon=12)
+    w = np.random.default_rng(0).uniform(0.0, 6.0, world.n_features)
+    value, grad = obj(w)
+    eps = 1e-5
+    fd = np.array([(obj(w + eps * e)[0] - obj(w - eps * e)[0]) / (2 * eps) for e in np.eye(w.size)])
+    np.testing.assert_allclose(grad, fd, atol=1e-7 + 1e-6 * np.abs(grad).max())
+
+
+def test_objective_is_the_demonstrations_log_likelihood():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 25, rng=3)
+    obj = MESCObjective(world.nominal_mdp, demos, horizon=10)
+    w = np.random.default_rng(1).uniform(0.0, 3.0, world.n_features)
+    pol = obj.policy(w)
+    ref = soft_value_iteration(world.nominal_mdp.penalised(w), horizon=10).policy
+    np.testing.assert_allclose(pol, ref, atol=1e-12)
+    t = demos.time_steps
+    keep = t < 10
+    loglik = np.log(pol[t[keep], demos.states[keep], demos.actions[keep]]).sum() / len(demos)
+    assert obj(w)[0] == pytest.approx(loglik, rel=1e-12)
+
+
+def test_deterministic_gradient_is_expected_minus_empirical_counts():
+    world = small_world(p_slip=0.0)
+    demos = generate_demonstrations(world.constrained_mdp, 40, rng=2)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    w = np.random.default_rng(2).uniform(0.0, 3.0, world.n_features)
+    expected, empirical = obj.feature_counts(w)
+    np.testing.assert_allclose(obj(w)[1], expected - empirical, atol=1e-12)
+    # the expected counts are those of the forward pass from the demonstrations' starts
+    d = state_action_visitation(world.nominal_mdp, obj.policy(w), start=obj.start)
+    assert expected[world.feature_slices["action"]].sum() == pytest.approx(d.state_action.sum())
+
+
+# ---------------------------------------------------------------- learning
+def test_recovers_figure1_constraints(figure1):
+    world = figure1.replace(p_slip=0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 300, rng=2)
+    res = mesc_irl(world.nominal_mdp, demos)
+    assert res.converged
+    names = res.feature_names
+    zeta = dict(zip(names, res.zeta))
+    # the constraints that the demonstrations reveal: the states and blue cells that a
+    # nominal route would cross, and the diagonal move it would take
+    for name in ("state 31", "state 39", "state 47", "action up_right", "colour blue"):
+        assert zeta[name] >= 0.6, (name, zeta[name])
+    false_pos = [n for n, z, t in zip(names, res.zeta, world.constraint_mask) if z >= 0.6 and not t]
+    assert len(false_pos) <= 2, false_pos
+    ranked = res.ranked_constraints(min_zeta=0.6)
+    assert [c.penalty for c in ranked] == sorted((c.penalty for c in ranked), reverse=True)
+    assert ranked[0].name in {"state 31", "state 39", "state 47", "action up_right", "colour blue"}
+
+
+def test_fits_the_papers_own_demonstrations(figure1):
+    demos = load_paper_demonstrations()[0]
+    world = figure1.replace(p_slip=0.0)
+    res = mesc_irl(world.nominal_mdp, demos)
+    assert res.converged
+    top = {c.name for c in res.ranked_constraints(min_zeta=0.75)}
+    assert {"action up_right", "colour blue"} <= top
+
+
+def test_same_seed_same_result_and_no_mutation():
+    world = small_world()
+    a = generate_demonstrations(world.constrained_mdp, 20, rng=7)
+    b = generate_demonstrations(world.constrained_mdp, 20, rng=7)
+    np.testing.assert_array_equal(a.states, b.states)
+    np.testing.assert_array_equal(a.actions, b.actions)
+    init = np.full(world.n_features, 0.5)
+    init_copy = init.copy()
+    states_copy = a.states.copy()
+    r1 = mesc_irl(world.nominal_mdp, a, init=init)
+    r2 = mesc_irl(world.nominal_mdp, b, init=init)
+    np.testing.assert_array_equal(r1.penalties, r2.penalties)
+    np.testing.assert_array_equal(init, init_copy)
+    np.testing.assert_array_equal(a.states, states_copy)
+    assert not r1.penalties.flags.writeable
+
+
+def test_warm_start_transfer():
+    w1 = GridWorld.random(6, rng=1, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4)
+    w2 = GridWorld.random(6, rng=2, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4)
+    r1 = mesc_irl(w1.nominal_mdp, generate_demonstrations(w1.constrained_mdp, 50, rng=0))
+    d2 = generate_demonstrations(w2.constrained_mdp, 50, rng=0)
+    cold = mesc_irl(w2.nominal_mdp, d2)
+    warm = mesc_irl(w2.nominal_mdp, d2, init=r1)
+    assert warm.converged and warm.objective >= cold.objective - 1e-2
+    with pytest.raises(ValueError, match="init was learned on other features"):
+        other = GridWorld(6, 0, 35)
+        bad = MESCResult.from_penalties(other.nominal_mdp, np.zeros(other.n_features))
+        object.__setattr__(bad, "feature_names", tuple(reversed(bad.feature_names)))
+        mesc_irl(w2.nominal_mdp, d2, init=bad)
+    with pytest.raises(ValueError, match=r"init must have one penalty per feature \(47\)"):
+        mesc_irl(w2.nominal_mdp, d2, init=MESCResult.from_penalties(small_world().nominal_mdp, np.zeros(27)))
+
+
+def test_bounds_and_ridge():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=0)
+    capped = mesc_irl(world.nominal_mdp, demos, max_penalty=5.0)
+    assert capped.penalties.max() <= 5.0
+    ridge = mesc_irl(world.nominal_mdp, demos, l2=1.0)
+    free = mesc_irl(world.nominal_mdp, demos)
+    assert np.linalg.norm(ridge.penalties) < np.linalg.norm(free.penalties)
+    assert free.objective >= ridge.objective
+
+
+def test_non_convergence_warns():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=0)
+    with pytest.warns(RuntimeWarning, match="L-BFGS-B did not converge"):
+        res = mesc_irl(world.nominal_mdp, demos, max_iter=1)
+    assert not res.converged
+
+
+# -------------------------------------------------------------------- zeta
+def test_zeta_and_pooled_sd():
+    world = small_world()
+    w = np.zeros(world.n_features)
+    w[6] = 30.0
+    w[world.feature_slices["colour"].start + 2] = 5.0
+    res = MESCResult.from_penalties(world.nominal_mdp, w)
+    n, c = world.nominal_mdp, res.constrained
+    feasible = (n.probs > 0) & ~n.terminal[:, None, None]
+    s_n, s_c = np.std(n.rewards[feasible]), np.std(c.rewards[feasible])
+    assert res.sigma_nominal == pytest.approx(s_n) and res.sigma_constrained == pytest.approx(s_c)
+    s = np.sqrt((s_n**2 + s_c**2) / 2)
+    np.testing.assert_allclose(res.zeta, 1 / (1 + np.exp(-(w - s) / s)))
+    np.testing.assert_allclose(res.feature_zeta([6]), constraint_probability([30.0], s))
+    tz = res.transition_zeta(world.feature_slices["state"])
+    k = n.successor_index(2, 2, 6)
+    assert tz[2, 2, k] == pytest.approx(float(constraint_probability(30.0, s)))
+    assert res.ranked_constraints(min_zeta=0.5)[0].name == "state 6"
+
+
+# ---------------------------------------------------------- demonstrations
+def test_sampled_visitation_matches_forward_pass():
+    world = small_world(p_slip=0.2)
+    mdp = world.constrained_mdp
+    pol = soft_value_iteration(mdp).policy
+    n = 4000
+    demos = sample_trajectories(mdp, pol, n, rng=0)
+    counts = np.zeros((mdp.n_states, mdp.n_actions))
+    np.add.at(counts, (demos.states, demos.actions), 1.0)
+    expected = state_action_visitation(mdp, pol).state_action
+    # per-trajectory counts: the mean is within 5 standard errors of the expectation
+    per = np.zeros((n, mdp.n_states, mdp.n_actions))
+    idx = np.repeat(np.arange(n), demos.lengths)
+    np.add.at(per, (idx, demos.states, demos.actions), 1.0)
+    se = per.std(axis=0) / np.sqrt(n) + 1e-3
+    assert np.all(np.abs(counts / n - expected) <= 5 * se)
+
+
+def test_time_indexed_sampling_and_truncation():
+    world = small_world()
+    mdp = world.nominal_mdp
+    pol = soft_value_iteration(mdp, horizon=3).policy
+    with pytest.warns(RuntimeWarning, match=r"did not reach a terminal state within max_steps=3"):
+        demos = sample_trajectories(mdp, pol, 10, rng=0)
+    assert demos.lengths.max() <= 3 and not demos.reached_terminal.all()
+
+
+def test_demonstrations_views_and_round_trip(tmp_path):
+    d = Demonstrations.from_sequences([[0, 1, 5], [0, 4]], [[1, 5], [2]])
+    assert d.time_steps.tolist() == [0, 1, 0] and d.start_states.tolist() == [0, 0]
+    save_demonstrations(d, tmp_path / "d.json")
+    back = load_demonstrations(tmp_path / "d.json")
+    assert back.to_dict() == d.to_dict()
+
+
+def test_paper_demonstrations_fit_the_paper_world(figure1):
+    sets = load_paper_demonstrations()
+    assert len(sets) == 10 and all(len(s) == 100 for s in sets)
+    sets[0].check(figure1.replace(p_slip=0.0).nominal_mdp)
+
+
+def test_save_and_load(tmp_path, figure1):
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=0)
+    res = mesc_irl(world.nominal_mdp, demos)
+    res.save(tmp_path / "r.json")
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["format"] == "pymdft.mesc_result"
+    back = load_mesc_result(tmp_path / "r.json", world.nominal_mdp)
+    np.testing.assert_array_equal(back.penalties, res.penalties)
+    np.testing.assert_allclose(back.zeta, res.zeta)
+    assert back.objective == res.objective and back.converged == res.converged
+    with pytest.raises(ValueError, match="do not match"):
+        load_mesc_result(tmp_path / "r.json", figure1.nominal_mdp)
+    save_mdp(res.constrained, tmp_path / "m.npz")
+    m = load_mdp(tmp_path / "m.npz")
+    np.testing.assert_array_equal(m.rewards, res.constrained.rewards)
+    assert m.features.names == world.feature_names
+    with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
+        assert all(z[k].dtype != object for k in z.files)
+    with pytest.raises(FileNotFoundError, match="result file not found"):
+        load_mesc_result(tmp_path / "nope.json", world.nominal_mdp)
+
+
+# --------------------------------------------------------------- bad input
+def test_bad_demonstrations():
+    with pytest.raises(ValueError, match="at least one trajectory"):
+        Demonstrations.from_sequences([], [])
+    with pytest.raises(ValueError, match=r"at least one transition \(trajectory 1 is empty\)"):
+        Demonstrations.from_sequences([[0, 1], [3]], [[0], []])
+    with pytest.raises(ValueError, match="trajectory 0 must have one more state than actions"):
+        Demonstrations.from_sequences([[0, 1]], [[0, 1]])
+    with pytest.raises(ValueError, match="trajectory 0 is not contiguous"):
+        Demonstrations([0, 2], [0, 5], [1, 1], [1, 6])
+    with pytest.raises(TypeError, match="states must hold integers"):
+        Demonstrations([0, 1], [0.5], [1], [1])
+    world = small_world()
+    mdp = world.nominal_mdp
+    with pytest.raises(ValueError, match=r"demonstrations states must be < 16 for this MDP \(trajectory 0, step 1 has 20\)"):
+        Demonstrations.from_sequences([[0, 20, 1]], [[1, 1]]).check(mdp)
+    with pytest.raises(ValueError, match=r"demonstrations actions must be < 8"):
+        Demonstrations.from_sequences([[0, 1]], [[9]]).check(mdp)
+    with pytest.raises(ValueError, match=r"the transition \(0, 1, 10\) has probability zero"):
+        Demonstrations.from_sequences([[0, 10]], [[1]]).check(mdp)
+    with pytest.raises(ValueError, match="acts from the terminal state 15"):
+        Demonstrations.from_sequences([[14, 15, 14]], [[1, 0]]).check(mdp)
+
+
+def test_bad_mesc_input():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 5, rng=0)
+    with pytest.raises(TypeError, match="demonstrations must be an irl.Demonstrations"):
+        mesc_irl(world.nominal_mdp, [[0, 1]])
+    with pytest.raises(ValueError, match="nominal must have features"):
+        mesc_irl(world.nominal_mdp.replace(features=None), demos)
+    with pytest.raises(TypeError, match="nominal must be an irl.MDP"):
+        mesc_irl("world", demos)
+    with pytest.raises(ValueError, match=r"init must have shape \(27\)"):
+        mesc_irl(world.nominal_mdp, demos, init=np.zeros(3))
+    with pytest.raises(ValueError, match="init must be non-negative"):
+        mesc_irl(world.nominal_mdp, demos, init=-np.ones(27))
+    with pytest.raises(ValueError, match="horizon must be an integer >= 1"):
+        mesc_irl(world.nominal_mdp, demos, horizon=0)
+    with pytest.raises(ValueError, match="l2 must be >= 0"):
+        mesc_irl(world.nominal_mdp, demos, l2=-1.0)
+    with pytest.raises(ValueError, match=r"penalties must have shape \(27\)"):
+        MESCObjective(world.nominal_mdp, demos)(np.zeros(26))
+    with pytest.raises(ValueError, match="penalties must be non-negative"):
+        MESCResult.from_penalties(world.nominal_mdp, -np.ones(27))
