@@ -203,3 +203,20 @@ def _make_first(*ids):
             except gymnasium.error.Error:
                 continue
     pytest.skip(f"none of {ids} in this Gymnasium")
+
+
+def test_planning_on_adapted_worlds():
+    from irl.planning import value_iteration
+
+    # Fake corridor: two steps of -1 to the goal.
+    class Corridor:
+        P = {s: {0: [(1.0, max(s - 1, 0), -1.0, False)], 1: [(1.0, s + 1, -1.0, s + 1 == 2)]} for s in range(2)}
+        P[2] = {0: [(1.0, 2, 0.0, True)], 1: [(1.0, 2, 0.0, True)]}
+        initial_state_distrib = [1.0, 0.0, 0.0]
+
+    res = value_iteration(from_gymnasium(Corridor()))
+    np.testing.assert_allclose(res.values, [-2.0, -1.0, 0.0])
+    pytest.importorskip("gymnasium")
+    # CliffWalking: the optimal path hugs the cliff, 13 steps of -1.
+    cliff = from_gymnasium(_make_first("CliffWalking-v1", "CliffWalking-v0"))
+    assert value_iteration(cliff).values[36] == pytest.approx(-13.0)
