@@ -236,28 +236,39 @@ def plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     return argmax_random_ties(P, state), n_steps
 
 
+@njit
+def plain_chunk(state, first, stop, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                use_threshold, choices, steps):
+    """Trials ``first <= k < stop`` with :func:`plain_trial` on one stream.
+
+    Writes ``choices[k - first]`` and ``steps[k - first]``.
+    """
+    n = P0.shape[0]
+    P = np.empty(n)
+    P_next = np.empty(n)
+    eps = np.empty(n)
+    dummy = np.empty((1, n))
+    for k in range(first, stop):
+        choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                   use_threshold, P, P_next, eps, dummy, False)
+        choices[k - first] = choice
+        steps[k - first] = step
+
+
 @njit_parallel
 def plain_chunks(states, bounds, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
                  use_threshold, choices, steps):
-    """Run trials ``bounds[0] .. bounds[-1]`` with :func:`plain_trial`, one stream per chunk.
+    """:func:`plain_chunk` for every chunk ``c`` (stream ``states[c]``), chunks in parallel.
 
-    Writes ``choices[k]`` and ``steps[k]`` for every trial ``k`` of the range
-    (indices relative to ``bounds[0]``).
+    Trial ``k`` writes ``choices[k - bounds[0]]`` and ``steps[k - bounds[0]]``.
     """
     n_chunks = bounds.shape[0] - 1
-    n = P0.shape[0]
-    first = bounds[0]
+    origin = bounds[0]
     for c in prange(n_chunks):
-        state = states[c]
-        P = np.empty(n)
-        P_next = np.empty(n)
-        eps = np.empty(n)
-        dummy = np.empty((1, n))
-        for k in range(bounds[c], bounds[c + 1]):
-            choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
-                                       use_threshold, P, P_next, eps, dummy, False)
-            choices[k - first] = choice
-            steps[k - first] = step
+        lo = bounds[c] - origin
+        hi = bounds[c + 1] - origin
+        plain_chunk(states[c], bounds[c], bounds[c + 1], S, CM, C, noise_sd, cuts, P0,
+                    n_steps, theta, use_threshold, choices[lo:hi], steps[lo:hi])
 
 
 @njit
@@ -347,9 +358,9 @@ def draw_pattern(state, cuts, cut0, size):
     return p
 
 
-@njit_parallel
-def fixed_time_chunks(states, bounds, blocks, block_size, n_steps, base, L, cuts, counts):
-    """Fixed-time trials through the exact linear decomposition of ``P(T)``.
+@njit
+def fixed_time_chunk(state, first, stop, blocks, block_size, n_steps, base, L, cuts, counts):
+    """Fixed-time trials ``first <= k < stop`` through the exact decomposition of ``P(T)``.
 
     ``P(T) = base + sum_t S^(T-t) C M e_(j_t) + L z`` with ``base = S^T P0``,
     ``j_t`` the attribute attended at step ``t`` and ``z`` a standard normal
@@ -357,29 +368,35 @@ def fixed_time_chunks(states, bounds, blocks, block_size, n_steps, base, L, cuts
     accumulated noise). The attention sum is read from :func:`block_table`,
     one lookup per block of steps. Per trial the draws are: ``n_steps``
     attention uniforms in step order (none for one attribute), then
-    ``L.shape[1]`` normals, then one uniform only for a tie.
-    Adds the choices of chunk ``c`` to ``counts[c]``.
+    ``L.shape[1]`` normals, then one uniform only for a tie. Adds each
+    choice to ``counts`` (n_options,).
     """
-    n_chunks = bounds.shape[0] - 1
     n = base.shape[0]
     rank = L.shape[1]
     n_blocks = blocks.shape[0]
     cut0 = cuts[0]
-    for c in prange(n_chunks):
-        state = states[c]
-        P = np.empty(n)
-        for _k in range(bounds[c], bounds[c + 1]):
+    P = np.empty(n)
+    for _k in range(first, stop):
+        for i in range(n):
+            P[i] = base[i]
+        for m in range(n_blocks):
+            p = draw_pattern(state, cuts, cut0, min(block_size, n_steps - m * block_size))
             for i in range(n):
-                P[i] = base[i]
-            for m in range(n_blocks):
-                p = draw_pattern(state, cuts, cut0, min(block_size, n_steps - m * block_size))
-                for i in range(n):
-                    P[i] += blocks[m, p, i]
-            for q in range(rank):
-                z = standard_normal(state)
-                for i in range(n):
-                    P[i] += L[i, q] * z
-            counts[c, argmax_random_ties(P, state)] += 1
+                P[i] += blocks[m, p, i]
+        for q in range(rank):
+            z = standard_normal(state)
+            for i in range(n):
+                P[i] += L[i, q] * z
+        counts[argmax_random_ties(P, state)] += 1
+
+
+@njit_parallel
+def fixed_time_chunks(states, bounds, blocks, block_size, n_steps, base, L, cuts, counts):
+    """:func:`fixed_time_chunk` for every chunk ``c``, in parallel, counting in ``counts[c]``."""
+    n_chunks = bounds.shape[0] - 1
+    for c in prange(n_chunks):
+        fixed_time_chunk(states[c], bounds[c], bounds[c + 1], blocks, block_size, n_steps,
+                         base, L, cuts, counts[c])
 
 
 # ---------------------------------------------------------------- decisions for agents
@@ -428,27 +445,33 @@ def _one_decision(state, M, cuts, phi1, phi2, beta, noise_sd, n_steps, S, CM, P,
     return argmax_random_ties(P, state)
 
 
-@njit_parallel
-def decide_chunks(states, bounds, M, cuts, phi1, phi2, beta, noise_sd, n_steps, out):
-    """One fixed-time deliberation per decision ``d``: ``out[d]`` is the chosen option.
+@njit
+def decide_chunk(state, first, stop, M, cuts, phi1, phi2, beta, noise_sd, n_steps, out):
+    """One fixed-time deliberation for each decision ``first <= d < stop``: ``out[d]``.
 
     ``M`` has shape (n_decisions, n_options, n_attributes) and ``cuts`` shape
     (n_decisions, n_attributes) or (1, n_attributes) (shared). The feedback
     matrix is built from ``M[d]`` inside the kernel; ``P(0) = 0`` and the
     contrast is the standard one.
     """
-    n_chunks = bounds.shape[0] - 1
     n = M.shape[1]
     J = M.shape[2]
     shared = cuts.shape[0] == 1
+    S = np.empty((n, n))
+    CM = np.empty((n, J))
+    P = np.empty(n)
+    P_next = np.empty(n)
+    eps = np.empty(n)
+    for d in range(first, stop):
+        cw = cuts[0] if shared else cuts[d]
+        out[d] = _one_decision(state, M[d], cw, phi1, phi2, beta, noise_sd, n_steps,
+                               S, CM, P, P_next, eps)
+
+
+@njit_parallel
+def decide_chunks(states, bounds, M, cuts, phi1, phi2, beta, noise_sd, n_steps, out):
+    """:func:`decide_chunk` for every chunk ``c`` (stream ``states[c]``), in parallel."""
+    n_chunks = bounds.shape[0] - 1
     for c in prange(n_chunks):
-        state = states[c]
-        S = np.empty((n, n))
-        CM = np.empty((n, J))
-        P = np.empty(n)
-        P_next = np.empty(n)
-        eps = np.empty(n)
-        for d in range(bounds[c], bounds[c + 1]):
-            cw = cuts[0] if shared else cuts[d]
-            out[d] = _one_decision(state, M[d], cw, phi1, phi2, beta, noise_sd, n_steps,
-                                   S, CM, P, P_next, eps)
+        decide_chunk(states[c], bounds[c], bounds[c + 1], M, cuts, phi1, phi2, beta, noise_sd,
+                     n_steps, out)

@@ -36,6 +36,12 @@ N_CHUNKS = 64
 #: Largest number of decisions per chunk in :func:`decide`.
 _DECISIONS_PER_CHUNK = 256
 
+#: Below this many steps of work (trials x steps) the chunks run one after the
+#: other in the calling thread: waking the thread pool would cost more than
+#: it saves. The chunks and their streams are the same either way, and so is
+#: the result.
+_PARALLEL_WORK = 200_000
+
 #: Largest attention table (n_steps * n_attributes * n_options doubles) the
 #: fixed-time shortcut may build; past it the step-by-step kernel is used.
 _MAX_TABLE_SIZE = 4_000_000
@@ -333,9 +339,14 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
         method = "shortcut"
         blocks, block_size, base, L = shortcut
         chunk_counts = np.zeros((N_CHUNKS, n), dtype=np.int64)
+        args = (blocks, block_size, n_steps, base, L, cuts)
         with np.errstate(over="ignore"):
-            _kernels.fixed_time_chunks(chunk_states, bounds, blocks, block_size, n_steps, base,
-                                       L, cuts, chunk_counts)
+            if n_rest * n_steps >= _PARALLEL_WORK:
+                _kernels.fixed_time_chunks(chunk_states, bounds, *args, chunk_counts)
+            else:
+                for c in _nonempty_chunks(bounds):
+                    _kernels.fixed_time_chunk(chunk_states[c], bounds[c], bounds[c + 1], *args,
+                                              chunk_counts[c])
         counts += chunk_counts.sum(axis=0)
         choices = steps = None
     else:
@@ -344,10 +355,16 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
         steps = np.empty(n_samples, dtype=np.int64)
         choices[:n_trajectories] = rec_choices
         steps[:n_trajectories] = rec_steps
+        args = (S, CM, C, noise_sd, cuts, P0, n_steps, theta, threshold)
         with np.errstate(over="ignore"):
-            _kernels.plain_chunks(chunk_states, bounds, S, CM, C, noise_sd, cuts, P0, n_steps,
-                                  theta, threshold, choices[n_trajectories:],
-                                  steps[n_trajectories:])
+            if n_rest * n_steps >= _PARALLEL_WORK:
+                _kernels.plain_chunks(chunk_states, bounds, *args, choices[n_trajectories:],
+                                      steps[n_trajectories:])
+            else:
+                for c in _nonempty_chunks(bounds):
+                    lo, hi = bounds[c], bounds[c + 1]
+                    _kernels.plain_chunk(chunk_states[c], lo, hi, *args, choices[lo:hi],
+                                         steps[lo:hi])
         counts += np.bincount(choices[n_trajectories:][choices[n_trajectories:] >= 0],
                               minlength=n)
         if not threshold:
@@ -467,9 +484,13 @@ def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
     bounds = (np.arange(n_chunks + 1, dtype=np.int64) * n_decisions) // n_chunks
     cuts = _attention_cuts(w_rows)
     out = np.empty(n_decisions, dtype=np.int64)
+    args = (batch, cuts, phi1, phi2, beta, math.sqrt(sigma2), n_steps)
     with np.errstate(over="ignore"):
-        _kernels.decide_chunks(states, bounds, batch, cuts, phi1, phi2, beta,
-                               math.sqrt(sigma2), n_steps, out)
+        if n_decisions * n_steps >= _PARALLEL_WORK:
+            _kernels.decide_chunks(states, bounds, *args, out)
+        else:
+            for c in _nonempty_chunks(bounds):
+                _kernels.decide_chunk(states[c], bounds[c], bounds[c + 1], *args, out)
     return int(out[0]) if single else out
 
 
@@ -606,6 +627,11 @@ def _batch_attention(w, n_decisions: int, n_attributes: int) -> np.ndarray:
             f"w must sum to 1 (got {totals[off][0]:.6g}); pass normalised attention weights"
         )
     return arr / totals[:, None]
+
+
+def _nonempty_chunks(bounds: np.ndarray):
+    """Indices of the chunks that hold at least one trial."""
+    return np.flatnonzero(bounds[1:] > bounds[:-1])
 
 
 def _option_index(option, n_options: int) -> int:

@@ -90,7 +90,7 @@ def test_xoshiro_reference_output():
 def test_normal_and_uniform_draws_have_the_right_distribution():
     from scipy import stats
 
-    @numba.njit
+    @numba.njit(cache=True)
     def draws(state, n):
         z = np.empty(n)
         u = np.empty(n)
