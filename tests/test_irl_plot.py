@@ -143,3 +143,12 @@ def test_bad_input(world):
         plot_feature_values(ax, world, np.zeros(world.n_features))
     with pytest.raises(ValueError, match=f"values must have {world.n_features} entries"):
         plot_feature_values([ax, ax, ax], world, np.zeros(3))
+
+
+def test_trajectories_from_a_demonstrations_set(world):
+    from irl.demonstrations import Demonstrations
+
+    demos = Demonstrations.from_sequences([[0, 5, 10], [0, 1]], [[5, 5], [1]])
+    ax = plot_trajectories(new_ax(), world, demos)
+    assert len(ax.lines) == 2
+    np.testing.assert_array_equal(ax.lines[0].get_xdata(), [0, 1, 2])

@@ -291,3 +291,15 @@ def test_visitation_bad_input():
         visitation_counts(ok, n_states=2, n_actions=2.0)
     with pytest.raises(ValueError, match="pseudocount must be >= 0"):
         visitation_kl_divergence(ok, ok, n_states=2, n_actions=2, pseudocount=-1)
+
+
+def test_visitation_counts_of_a_demonstrations_set():
+    from irl.demonstrations import Demonstrations
+
+    states, actions = [[0, 1, 2], [2, 2]], [[1, 0], [1]]
+    demos = Demonstrations.from_sequences(states, actions)
+    np.testing.assert_array_equal(
+        visitation_counts(demos, n_states=3, n_actions=2),
+        visitation_counts(list(zip(states, actions)), n_states=3, n_actions=2),
+    )
+    assert visitation_kl_divergence(demos, demos, n_states=3, n_actions=2) == 0.0

@@ -154,12 +154,16 @@ def test_accepts_demonstration_formats():
         def __init__(self, s, a):
             self.states, self.actions = np.array(s), np.array(a)
 
+    from irl.demonstrations import Demonstrations
+
     pairs = [([0, 4, 5, 2], [5, 1, 3])]
     objs = [Demo([0, 4, 5, 2], [5, 1, 3])]
     dicts = [{"state_seq": [0, 4, 5, 2], "action_seq": [5, 1, 3]}]
-    results = [infer_hard_constraints(world.nominal_mdp, d, horizon=5).constraints for d in (pairs, objs, dicts)]
-    np.testing.assert_array_equal(results[0], results[1])
-    np.testing.assert_array_equal(results[0], results[2])
+    flat = Demonstrations.from_sequences([[0, 4, 5, 2]], [[5, 1, 3]])
+    results = [infer_hard_constraints(world.nominal_mdp, d, horizon=5).constraints
+               for d in (pairs, objs, dicts, flat)]
+    for other in results[1:]:
+        np.testing.assert_array_equal(results[0], other)
 
 
 def test_bad_input():
@@ -224,12 +228,12 @@ def test_reproduces_the_original_on_the_paper_world(shared_data):
     (the original's trajectory model is not fully specified), so only the
     constraints and their order are compared.
     """
+    from irl.io import load_paper_demonstrations, load_paper_worlds
+
     root = shared_data / "paper"
-    entry = json.loads((root / "scobee_example_data.json").read_text())[0]
-    trajs = json.loads((root / "scobee_example_trajectories.json").read_text())[0]["trajs"][0]
     ref = json.loads((root / "scobee_results_scobee_example.json").read_text())[0]["learned_constraints"][0][18]
-    world = GridWorld.from_dict(entry, p_slip=0.0, discount=1.0)
-    demos = list(zip(trajs["state_seq"], trajs["action_seq"]))
+    world = load_paper_worlds("scobee_example", p_slip=0.0)[0]
+    demos = load_paper_demonstrations()[0]
     res = infer_hard_constraints(world.nominal_mdp, demos)
     ref_names = [f"{c['type']} {c['value']}" for c in ref]
     assert ref_names == ["action 5", "feature 2", "state 31", "state 39", "state 47", "action 4", "state 41"]
