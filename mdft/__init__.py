@@ -13,7 +13,18 @@ from .model import (
 )
 from .simulate import FixedTime, SimulationResult, Threshold, decide, simulate
 from .closed_form import ClosedFormAccuracyWarning, choice_probabilities, preference_moments
+from .effects import (
+    ATTRACTION,
+    COMPROMISE,
+    SIMILARITY,
+    ContextEffect,
+    ContextEffects,
+    EffectResult,
+    context_effects,
+    default_stopping,
+)
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
+from .threshold_exact import ThresholdProbabilities, threshold_probabilities
 
 __all__ = [
     "FixedTime",
@@ -33,4 +44,14 @@ __all__ = [
     "contrast_matrix",
     "distance_matrix",
     "feedback_matrix",
+    "ATTRACTION",
+    "COMPROMISE",
+    "SIMILARITY",
+    "ContextEffect",
+    "ContextEffects",
+    "EffectResult",
+    "context_effects",
+    "default_stopping",
+    "ThresholdProbabilities",
+    "threshold_probabilities",
 ]
