@@ -25,6 +25,7 @@ from .effects import (
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
+from .threshold_exact import ThresholdProbabilities, threshold_probabilities
 
 __all__ = [
     "FixedTime",
@@ -52,6 +53,8 @@ __all__ = [
     "EffectResult",
     "context_effects",
     "default_stopping",
+    "ThresholdProbabilities",
+    "threshold_probabilities",
     "ThresholdProbabilities",
     "threshold_probabilities",
 ]
