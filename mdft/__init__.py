@@ -25,7 +25,6 @@ from .effects import (
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
-from .threshold_exact import ThresholdProbabilities, threshold_probabilities
 
 __all__ = [
     "FixedTime",
@@ -53,8 +52,6 @@ __all__ = [
     "EffectResult",
     "context_effects",
     "default_stopping",
-    "ThresholdProbabilities",
-    "threshold_probabilities",
     "ThresholdProbabilities",
     "threshold_probabilities",
 ]
