@@ -12,7 +12,13 @@ from .model import (
     feedback_matrix,
 )
 from .simulate import FixedTime, SimulationResult, Threshold, decide, simulate
-from .closed_form import ClosedFormAccuracyWarning, choice_probabilities, preference_moments
+from .closed_form import (
+    ClosedFormAccuracyWarning,
+    MixtureProbabilities,
+    choice_probabilities,
+    mixture_choice_probabilities,
+    preference_moments,
+)
 from .effects import (
     ATTRACTION,
     COMPROMISE,
@@ -35,6 +41,8 @@ __all__ = [
     "ClosedFormAccuracyWarning",
     "choice_probabilities",
     "preference_moments",
+    "MixtureProbabilities",
+    "mixture_choice_probabilities",
     "ChoiceData",
     "FitConvergenceWarning",
     "FitResult",

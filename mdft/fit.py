@@ -486,7 +486,8 @@ def _predict(p, subsets, stopping, engine, settings):
                 q = np.full(sub.size, np.nan)
         elif engine == "threshold_exact":
             theta, max_steps = spec
-            res = settings["threshold_fn"](_quiet_model(Ms, p), theta, max_steps=max_steps)
+            res = settings["threshold_fn"](_quiet_model(Ms, p), theta, max_steps=max_steps,
+                                           **settings["threshold_options"])
             q = _conditional(res)
         else:
             import mdft
@@ -732,6 +733,8 @@ def fit(
     tol=1e-10,
     n_samples=20_000,
     method="auto",
+    n_screen_per_start=8,
+    threshold_options=None,
 ) -> FitResult:
     """Fit MDFT parameters to choice data by maximum likelihood.
 
@@ -761,7 +764,9 @@ def fit(
         ``"M"`` (scalars or arrays; default the range of ``M`` widened by its span on each
         side). ``w`` always ranges over the whole simplex.
     n_starts : int, default 5
-        Number of optimiser starts; the best is kept.
+        Number of optimiser starts; the best is kept. The first is ``start``; the others
+        are the best of ``n_screen_per_start * (n_starts - 1)`` points drawn uniformly from
+        the bounds (for a simulated likelihood: the first draws, unscreened).
     rng : None, int or numpy.random.Generator
         Randomness of the extra starts (and of the simulation seed, if simulation is used).
     max_iter : int, default 500
@@ -771,10 +776,16 @@ def fit(
         (``fatol``, scaled by the number of trials).
     n_samples : int, default 20000
         Trials per subset and evaluation when threshold stopping is simulated.
+    n_screen_per_start : int, default 8
+        Screening points per extra start (see ``n_starts``).
     method : {"auto", "threshold_exact", "simulation"}
-        Engine for threshold stopping; ``"auto"`` uses ``mdft.threshold_probabilities`` for
-        subsets of 2 or 3 options when it is available and simulation otherwise. Fixed time
-        always uses the closed form.
+        Engine for threshold stopping; ``"auto"`` uses ``mdft.threshold_probabilities`` when
+        every subset has 2 options (about 0.3 s per evaluation) and simulation otherwise
+        (the lattice method for 3 options costs seconds per evaluation, too slow for an
+        optimiser; ask for it explicitly with ``"threshold_exact"``). Fixed time always uses
+        the closed form.
+    threshold_options : dict, optional
+        Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``n_cells``).
 
     Returns
     -------
@@ -834,6 +845,7 @@ def fit(
     max_iter = as_count("max_iter", max_iter)
     tol = as_scalar("tol", tol, low=0.0, low_inclusive=False)
     n_samples = as_count("n_samples", n_samples)
+    n_screen_per_start = as_count("n_screen_per_start", n_screen_per_start)
     if method not in ("auto", "threshold_exact", "simulation"):
         raise ValueError(
             f"method must be 'auto', 'threshold_exact' or 'simulation' (got {method!r})"
@@ -842,12 +854,13 @@ def fit(
     values, res_bounds, first = _resolve(M, fitted, fixed, start, bounds)
     rng = np.random.default_rng(rng)
 
-    settings = {"n_samples": n_samples, "seed": int(rng.integers(2**31))}
+    settings = {"n_samples": n_samples, "seed": int(rng.integers(2**31)),
+                "threshold_options": dict(threshold_options or {})}
     if kind == "fixed":
         engine = "closed_form"
     else:
         fn = _threshold_exact_function()
-        small = max(s.size for s in data.subsets) <= 3
+        small = max(s.size for s in data.subsets) <= 2
         if method == "threshold_exact" and fn is None:
             raise ValueError(
                 "method='threshold_exact' needs mdft.threshold_probabilities, which is not "
@@ -886,8 +899,17 @@ def fit(
         return total
 
     starts = [layout.pack(first)]
-    for _ in range(n_starts - 1):
-        starts.append(rng.uniform(0.0, 1.0, size=layout.size))
+    if n_starts > 1:
+        # Screen random points of the unit cube and start from the best of them: the
+        # likelihood can be flat where every predicted probability is 0 or 1.
+        n_screen = n_screen_per_start * (n_starts - 1)
+        cand = rng.uniform(0.0, 1.0, size=(n_screen, layout.size))
+        if engine == "simulation":
+            cand = cand[: n_starts - 1]
+        else:
+            vals = np.array([negloglik(u) for u in cand])
+            cand = cand[np.argsort(vals, kind="stable")[: n_starts - 1]]
+        starts += list(cand)
 
     smooth = engine != "simulation"
     runs = []

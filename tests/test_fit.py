@@ -352,3 +352,29 @@ def test_loader_bad_path(tmp_path):
     bad.write_text('{"M": [[1, 2]]}')
     with pytest.raises(ValueError, match="lacks the field 'idx'"):
         load_sushi(bad)
+
+
+def test_threshold_fit_exact_two_options():
+    fn = getattr(mdft, "threshold_probabilities", None)
+    if fn is None or not hasattr(mdft, "Threshold"):
+        pytest.skip("mdft.threshold_probabilities not available")
+    M = np.array([[1.0, 3.0], [3.0, 1.0]])
+    params = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+    stop = mdft.Threshold(5.0, max_steps=2000)
+    p = fn(mdft.MDFTModel(M, [0.65, 0.35], **params), 5.0, max_steps=2000).probabilities
+    data = ChoiceData([[0, 1]], [np.round(p / p.sum() * 10_000).astype(int)])
+    res = fit(data, M, stopping=stop, params=["w"], fixed=params, n_starts=1, rng=0,
+              threshold_options=dict(n_cells=60))
+    assert res.engine == "threshold_exact"
+    assert abs(res.params["w"][0] - 0.65) < 0.02
+
+
+def test_screening_finds_the_better_optimum():
+    # Data generated at w = 0.7; the first start (w = 0.5) sits where every subset's
+    # prediction is near-deterministic; several screened starts reach the optimum.
+    M = np.array([[6.96, 6.16], [1.84, 9.58], [9.76, 2.34]])
+    params = dict(phi1=0.0535, phi2=0.0646, beta=10.0, sigma2=1.018)
+    p = probabilities(M, [[0, 1, 2]], dict(w=np.array([0.7, 0.3]), **params), 25)[0]
+    data = ChoiceData([[0, 1, 2]], [np.round(p * 10_000).astype(int)])
+    res = fit(data, M, stopping=25, params=["w"], fixed=params, n_starts=4, rng=0)
+    assert abs(res.params["w"][0] - 0.7) < 0.02
