@@ -172,22 +172,43 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, r_bar, terminal, discount, policy, demo_ptr, demo_s, demo_a):
+def soft_backward_into(next_states, probs, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
-    Demonstration transitions at step t are ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]``
-    (and ``demo_a``); their log-probabilities ``Q_t(s, a) - V_t(s)`` are summed
-    exactly (no underflow). Returns ``(v0, log_likelihood_sum)``. Keeps one (S, A)
-    buffer of Q-values only, so the memory is that of the policy.
+    ``shared[s]`` says that every action of s lists the same successors in the same
+    order (only the probabilities differ, as with slip): their values are then
+    gathered once per state. Demonstration transitions at step t are
+    ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and ``demo_a``); their
+    log-probabilities ``Q_t(s, a) - V_t(s)`` are summed without underflow.
+    Returns ``(v0, log_likelihood_sum)``.
     """
-    n_states, n_actions, _ = probs.shape
+    n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
     v_next = np.zeros(n_states)
     v = np.zeros(n_states)
     q = np.zeros((n_states, n_actions))
+    vk = np.zeros(n_succ)
     loglik = 0.0
     for t in range(horizon - 1, -1, -1):
-        _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q)
+        for s in range(n_states):
+            if terminal[s]:
+                for a in range(n_actions):
+                    q[s, a] = 0.0
+                continue
+            if shared[s]:
+                for k in range(n_succ):
+                    vk[k] = v_next[next_states[s, 0, k]]
+                for a in range(n_actions):
+                    acc = 0.0
+                    for k in range(n_succ):
+                        acc += probs[s, a, k] * vk[k]
+                    q[s, a] = r_bar[s, a] + discount * acc
+            else:
+                for a in range(n_actions):
+                    acc = 0.0
+                    for k in range(n_succ):
+                        acc += probs[s, a, k] * v_next[next_states[s, a, k]]
+                    q[s, a] = r_bar[s, a] + discount * acc
         _logsumexp_rows(q, terminal, v, policy[t])
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             loglik += q[demo_s[i], demo_a[i]] - v[demo_s[i]]
@@ -197,7 +218,7 @@ def soft_backward_into(next_states, probs, r_bar, terminal, discount, policy, de
 
 
 @njit
-def likelihood_adjoint(next_states, probs, terminal, discount, policy, demo_ptr, demo_s, demo_a, weight):
+def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a, weight):
     """Adjoint (forward) pass of the demonstrations' log-likelihood.
 
     With c_t(s, a) the weighted count of demonstration transitions at step t,
@@ -205,6 +226,7 @@ def likelihood_adjoint(next_states, probs, terminal, discount, policy, demo_ptr,
     ``m_{t+1}(s') = discount * sum_{s,a} L_t(s, a) P(s'|s, a)`` and ``m_0 = 0``
     gives ``d loglik = sum_t sum_{s,a} L_t(s, a) d r_bar(s, a)``. Returns
     ``(sa, dst)``: ``sa = sum_t L_t`` and ``dst[s'] = sum_t sum_{s,a} L_t(s, a) P(s'|s, a)``.
+    ``shared`` as in :func:`soft_backward_into`.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
@@ -212,34 +234,67 @@ def likelihood_adjoint(next_states, probs, terminal, discount, policy, demo_ptr,
     dst = np.zeros(n_states)
     m = np.zeros(n_states)
     m_next = np.zeros(n_states)
-    lam = np.zeros((n_states, n_actions))
+    acc = np.zeros(n_succ)
     for t in range(horizon):
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             m[demo_s[i]] -= weight
         for s in range(n_states):
             m_next[s] = 0.0
-            ms = m[s]
-            for a in range(n_actions):
-                lam[s, a] = 0.0 if terminal[s] else ms * policy[t, s, a]
-        for i in range(demo_ptr[t], demo_ptr[t + 1]):
-            lam[demo_s[i], demo_a[i]] += weight
         for s in range(n_states):
-            if terminal[s]:
+            ms = m[s]
+            if ms == 0.0 or terminal[s]:
                 continue
-            for a in range(n_actions):
-                la = lam[s, a]
-                if la == 0.0:
-                    continue
-                sa[s, a] += la
+            if shared[s]:
                 for k in range(n_succ):
-                    p = probs[s, a, k]
-                    if p != 0.0:
-                        ns = next_states[s, a, k]
-                        dst[ns] += la * p
-                        m_next[ns] += discount * la * p
+                    acc[k] = 0.0
+                for a in range(n_actions):
+                    la = ms * policy[t, s, a]
+                    sa[s, a] += la
+                    for k in range(n_succ):
+                        acc[k] += la * probs[s, a, k]
+                for k in range(n_succ):
+                    ns = next_states[s, 0, k]
+                    dst[ns] += acc[k]
+                    m_next[ns] += discount * acc[k]
+            else:
+                for a in range(n_actions):
+                    la = ms * policy[t, s, a]
+                    sa[s, a] += la
+                    for k in range(n_succ):
+                        p = probs[s, a, k]
+                        if p != 0.0:
+                            ns = next_states[s, a, k]
+                            dst[ns] += la * p
+                            m_next[ns] += discount * la * p
+        for i in range(demo_ptr[t], demo_ptr[t + 1]):
+            s = demo_s[i]
+            a = demo_a[i]
+            sa[s, a] += weight
+            for k in range(n_succ):
+                p = probs[s, a, k]
+                if p != 0.0:
+                    ns = next_states[s, a, k]
+                    dst[ns] += weight * p
+                    m_next[ns] += discount * weight * p
         for s in range(n_states):
             m[s] = m_next[s]
     return sa, dst
+
+
+@njit
+def shared_successors(next_states):
+    """Mask of states whose actions all list the same successors in the same order."""
+    n_states, n_actions, n_succ = next_states.shape
+    out = np.ones(n_states, dtype=np.bool_)
+    for s in range(n_states):
+        for a in range(1, n_actions):
+            for k in range(n_succ):
+                if next_states[s, a, k] != next_states[s, 0, k]:
+                    out[s] = False
+                    break
+            if not out[s]:
+                break
+    return out
 
 
 # ------------------------------------------------------------------ visitation

@@ -134,6 +134,7 @@ class MESCObjective:
         self._weight = 1.0 / n
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
+        self._shared = _kernels.shared_successors(nominal.next_states)
         self.n_evaluations = 0
 
     @property
@@ -148,7 +149,7 @@ class MESCObjective:
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._policy,
+            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._shared, self._policy,
             self._demo_ptr, self._demo_s, self._demo_a,
         )
 
@@ -161,7 +162,7 @@ class MESCObjective:
         nom = self.nominal
         _, loglik = self._backward(w)
         sa, dst = _kernels.likelihood_adjoint(
-            nom.next_states, nom.probs, nom.terminal, nom.discount, self._policy,
+            nom.next_states, nom.probs, nom.terminal, nom.discount, self._shared, self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )
         self.n_evaluations += 1
