@@ -14,7 +14,9 @@ world (the soft policy of its MDP, as in the paper), this reports
   the same demonstrations, deterministic world only (it assumes determinism);
   its soft errors use zeta = 1 on inferred constraints and 0 elsewhere;
 * "true model": the KL between held-out demonstrations and fresh ones of the
-  true model, the floor that sampling noise alone puts under the KL column;
+  true model, the floor that sampling noise alone puts under the KL column
+  (with ``--paper-demos``, draw d learns from the paper's set d, holds out set
+  d + 1 and takes set d + 2 as the fresh sample);
 * the constraints that the original implementation of the baseline learned on
   the paper's own demonstrations (``scobee_results_scobee_example.json``).
 
@@ -81,9 +83,12 @@ def run_setting(name, world, sizes, draws, args, pools=None):
         g_pool, g_held, g_true, g_mesc, g_scobee = (np.random.default_rng(s) for s in seed.spawn(5))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            pool = pools[d] if pools is not None else generate_demonstrations(world.constrained_mdp, max(sizes), rng=g_pool)
-            held = generate_demonstrations(world.constrained_mdp, args.n_heldout, rng=g_held)
-            fresh = generate_demonstrations(world.constrained_mdp, args.n_model, rng=g_true)
+            if pools is None:
+                pool = generate_demonstrations(world.constrained_mdp, max(sizes), rng=g_pool)
+                held = generate_demonstrations(world.constrained_mdp, args.n_heldout, rng=g_held)
+                fresh = generate_demonstrations(world.constrained_mdp, args.n_model, rng=g_true)
+            else:  # the paper's sets: hold out the next set, compare with the one after
+                pool, held, fresh = (pools[(d + k) % len(pools)] for k in range(3))
         rows.setdefault(("true model", 0), []).append({"kl": kl_to(held, fresh, world)})
         for n in sizes:
             demos = pool.subset(np.arange(n))
@@ -114,7 +119,7 @@ def run_setting(name, world, sizes, draws, args, pools=None):
     return rows
 
 
-def original_results(sizes):
+def original_results(sizes, n_sets=None):
     """Precision, recall, FPR and FDR of the original baseline's constraints (paper demonstrations)."""
     path = DATA / "scobee_results_scobee_example.json"
     if not path.is_file():
@@ -130,7 +135,7 @@ def original_results(sizes):
         if n not in lens:
             continue
         j = lens.index(n)
-        for sets in learned:
+        for sets in learned[:n_sets]:
             mask = np.zeros(world.n_features, dtype=bool)
             for c in sets[j]:
                 if c["type"] == "feature":
@@ -196,13 +201,13 @@ def main(argv=None):
         world = load_world(p_slip)
         pools = None
         if setting == "det" and args.paper_demos:
-            pools = load_paper_demonstrations()[:draws]
-            draws_here = len(pools)
+            pools = load_paper_demonstrations()
+            draws_here = min(draws, len(pools))
         else:
             draws_here = draws
         rows = run_setting(setting, world, sizes, draws_here, args, pools)
         if setting == "det":
-            rows.update(original_results(sizes))
+            rows.update(original_results(sizes, draws_here if pools is not None else None))
         source = "the paper's demonstrations" if pools is not None else f"seed {args.seed}"
         print(format_table(f"{'deterministic' if p_slip == 0 else 'slip 0.1'}", rows,
                            f"{draws_here} draws, {source}"))
