@@ -510,7 +510,9 @@ def _pairs(traj, index: int):
     a = np.asarray(actions)
     for name, arr in (("states", s), ("actions", a)):
         if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-            raise TypeError(f"trajectory {index}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})")
+            raise TypeError(
+                f"trajectory {index}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})"
+            )
     # A trajectory may list one more state than actions (the state reached last).
     if s.size not in (a.size, a.size + 1):
         raise ValueError(
@@ -569,9 +571,11 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     for i, traj in enumerate(items):
         s, a = _pairs(traj, i)
         if s.size and (s.min() < 0 or s.max() >= n_states):
-            raise ValueError(f"trajectory {i} has a state outside [0, {n_states}) (got {int(s.min() if s.min() < 0 else s.max())})")
+            bad = int(s.min() if s.min() < 0 else s.max())
+            raise ValueError(f"trajectory {i} has a state outside [0, {n_states}) (got {bad})")
         if a.size and (a.min() < 0 or a.max() >= n_actions):
-            raise ValueError(f"trajectory {i} has an action outside [0, {n_actions}) (got {int(a.min() if a.min() < 0 else a.max())})")
+            bad = int(a.min() if a.min() < 0 else a.max())
+            raise ValueError(f"trajectory {i} has an action outside [0, {n_actions}) (got {bad})")
         np.add.at(counts, (s[: a.size].astype(np.intp), a.astype(np.intp)), 1)
     if counts.sum() == 0:
         raise ValueError("trajectories hold no state-action pair (every trajectory is empty)")

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import logging
 import numbers
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,7 +92,9 @@ def _as_trajectories(demonstrations, n_states, n_actions):
         a = np.asarray(a)
         for name, arr in (("states", s), ("actions", a)):
             if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-                raise TypeError(f"demonstration {i}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})")
+                raise TypeError(
+                    f"demonstration {i}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})"
+                )
         if s.size == 0:
             raise ValueError(f"demonstration {i} has no state")
         if s.size not in (a.size, a.size + 1):
@@ -155,7 +156,8 @@ def _candidate_mask(candidates, n_features):
     if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
         raise TypeError(f"candidates must be feature indices or a boolean mask (got dtype {arr.dtype})")
     if arr.size and (arr.min() < 0 or arr.max() >= n_features):
-        raise ValueError(f"candidates must be feature indices in [0, {n_features}) (got {int(arr.max() if arr.max() >= n_features else arr.min())})")
+        bad = int(arr.max() if arr.max() >= n_features else arr.min())
+        raise ValueError(f"candidates must be feature indices in [0, {n_features}) (got {bad})")
     mask = np.zeros(n_features, dtype=bool)
     mask[arr] = True
     return mask
@@ -450,14 +452,14 @@ def infer_hard_constraints(
     kl_initial = -entropy - mean_ll
     kl_now = kl_initial
     stop = "no_candidate"
-    limit = int(admissible.sum()) if max_constraints is None else min(max_constraints, int(admissible.sum()))
     n_iter = 0
+    # Each pass adds one admissible candidate or stops, so this loop always ends by a break.
     for _ in range(int(admissible.sum()) + 1):
         if kl_threshold is not None and kl_now <= kl_threshold:
             stop = "kl_threshold"
             break
-        if len(chosen) >= limit:
-            stop = "max_constraints" if max_constraints is not None and len(chosen) >= max_constraints else "no_candidate"
+        if max_constraints is not None and len(chosen) >= max_constraints:
+            stop = "max_constraints"
             break
         n_iter += 1
         mass = trans.accrual(policy, base.start)
@@ -480,8 +482,6 @@ def infer_hard_constraints(
         kls.append(kl_now)
         lls.append(mean_ll)
         logger.debug("added %s (eliminated mass %.4g, KL %.4g)", names[best], a_best, kl_now)
-    else:  # pragma: no cover - the loop always breaks: each pass adds a candidate or stops
-        warnings.warn("constraint inference stopped without a stopping rule firing", RuntimeWarning, stacklevel=2)
 
     mask = np.zeros(mdp.n_features, dtype=bool)
     mask[chosen] = True

@@ -1,7 +1,6 @@
 """Tests of irl.scobee: the Scobee & Sastry baseline against brute-force enumeration,
 the published results of the original implementation, and bad input."""
 
-import itertools
 import json
 
 import numpy as np
