@@ -68,6 +68,16 @@ class _Command:
 _COMMANDS: list = []
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Show an argument's default in its help, unless there is none to show."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if action.default not in (None, False, argparse.SUPPRESS) and "%(default)" not in text:
+            text += " (default: %(default)s)"
+        return text
+
+
 def subcommand(name: str, *, help: str, arguments=(), description: str | None = None):
     """Register the decorated function ``run(args) -> int`` as ``mdft <name>``.
 
@@ -112,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     for cmd in _COMMANDS:
         sub = commands.add_parser(
             cmd.name, help=cmd.help, description=cmd.description,
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=_HelpFormatter,
         )
         for a in cmd.arguments:
             sub.add_argument(*a.flags, **a.kwargs)
@@ -189,7 +199,7 @@ _STOPPING_ARGS = (
         help="threshold stopping: choose the first option whose preference reaches THETA"),
     arg("--max-steps", type=_positive_int, metavar="K", default=None,
         help=f"with --threshold: trials undecided after K steps are reported as undecided "
-             f"(default {DEFAULT_MAX_STEPS})"),
+             f"(default: {DEFAULT_MAX_STEPS})"),
 )
 _SEED_ARG = arg(
     "--seed", type=_non_negative_int, default=None,
@@ -343,14 +353,18 @@ def _model_from_args(args):
         "--threshold says otherwise."
     ),
     arguments=(
-        arg("--options", metavar="ROWS", help="options inline, e.g. '1,3;3,1;2,2'"),
+        arg("--options", metavar="ROWS",
+            help="options inline, e.g. '1,3;3,1;2,2' (write --options=-1,3;... when the first "
+                 "value is negative)"),
         arg("--model", metavar="FILE", help="JSON file with M (and w, parameters, labels)"),
-        arg("--weights", metavar="W", help="attention weights, e.g. '0.5,0.5' (sum to 1)"),
+        arg("--weights", metavar="W",
+            help="attention weights, e.g. '0.5,0.5' (sum to 1; default: equal attention)"),
         arg("--labels", metavar="NAMES", help="option labels, e.g. 'A,B,C'"),
-        arg("--phi1", type=_real, help="distance sensitivity of lateral inhibition"),
-        arg("--phi2", type=_real, help="strength of lateral inhibition and decay"),
-        arg("--beta", type=_real, help="weight of the dominance dimension in the distance"),
-        arg("--sigma2", type=_real, help="variance of the valence noise"),
+        arg("--phi1", type=_real, help="distance sensitivity of lateral inhibition (default: 0.022)"),
+        arg("--phi2", type=_real, help="strength of lateral inhibition and decay (default: 0.05)"),
+        arg("--beta", type=_real,
+            help="weight of the dominance dimension in the distance (default: 12)"),
+        arg("--sigma2", type=_real, help="variance of the valence noise (default: 1)"),
         *_STOPPING_ARGS,
         arg("--samples", type=_positive_int, default=10_000, metavar="N",
             help="number of simulated trials"),

@@ -193,3 +193,16 @@ def test_bad_model_file_exits_2(tmp_path, capsys, content, message):
         main(["simulate", "--model", str(path)])
     assert info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_negative_first_value_with_equals_form(capsys):
+    data = run_json(capsys, ["simulate", "--options=-1,3;3,-1", "--samples", "200", "--seed", "0"])
+    assert data["options"][0]["M"] == [-1.0, 3.0]
+
+
+def test_help_lists_both_commands(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    assert "simulate" in out and "effects" in out
