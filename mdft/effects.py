@@ -295,6 +295,14 @@ class EffectResult:
     mean_response_times : ndarray, shape (n_options,), or None
         Mean decision step per chosen option in the ternary set (threshold
         stopping only).
+
+    Examples
+    --------
+    >>> res = context_effects("compromise", n_samples=4000, rng=0)["compromise"]
+    >>> res.scenario.labels, res.scenario.measure
+    (('A', 'B', 'C'), 'margin')
+    >>> bool(res.ternary[2] > max(res.ternary[0], res.ternary[1])), res.shown
+    (True, True)
     """
 
     scenario: ContextEffect

@@ -39,7 +39,15 @@ _MODEL_KEYS = {"M", "w", "phi1", "phi2", "beta", "sigma2", "P0", "labels"}
 
 
 class UsageError(Exception):
-    """Bad input from the user; reported through argparse (exit code 2)."""
+    """Bad input from the user; reported through argparse (exit code 2).
+
+    Examples
+    --------
+    >>> main(["simulate"])
+    Traceback (most recent call last):
+    ...
+    SystemExit: 2
+    """
 
 
 # ----------------------------------------------------------------------------- registry
@@ -52,7 +60,13 @@ class Arg:
 
 
 def arg(*flags, **kwargs) -> Arg:
-    """Declare an argument of a subcommand (same signature as ``add_argument``)."""
+    """Declare an argument of a subcommand (same signature as ``add_argument``).
+
+    Examples
+    --------
+    >>> arg("--samples", type=int, default=10).flags
+    ('--samples',)
+    """
     return Arg(flags, kwargs)
 
 
@@ -113,7 +127,14 @@ def subcommand(name: str, *, help: str, arguments=(), description: str | None = 
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``mdft`` parser with one sub-parser per registered command."""
+    """The ``mdft`` parser with one sub-parser per registered command.
+
+    Examples
+    --------
+    >>> args = build_parser().parse_args(["effects", "--samples", "100"])
+    >>> args.command, args.samples, args.out
+    ('effects', 100, 'effects.png')
+    """
     parser = argparse.ArgumentParser(
         prog="mdft",
         description="Multi-alternative Decision Field Theory: simulation and context effects.",
