@@ -85,10 +85,12 @@ def plot_trajectories(ax, trajectories, *, labels=None, threshold=None, alpha: f
     ----------
     ax : matplotlib.axes.Axes
         Where to draw.
-    trajectories : array_like, shape (n_trials, n_steps + 1, n_options)
+    trajectories : array_like, shape (n_trials, n_steps + 1, n_options), or SimulationResult
         Preferences from ``SimulationResult.trajectories`` (or
         ``EffectResult.trajectories``); steps after a trial decided may be NaN
-        and are not drawn.
+        and are not drawn. A :class:`mdft.SimulationResult` may be passed
+        itself: its trajectories are drawn, with its threshold if it used
+        threshold stopping and ``threshold`` is not given.
     labels : sequence of str, optional
         One label per option, used in the legend.
     threshold : float, optional
@@ -113,6 +115,10 @@ def plot_trajectories(ax, trajectories, *, labels=None, threshold=None, alpha: f
     >>> len(ax.lines)
     7
     """
+    if hasattr(trajectories, "trajectories") and hasattr(trajectories, "stopping"):
+        if threshold is None:
+            threshold = getattr(trajectories.stopping, "theta", None)
+        trajectories = trajectories.trajectories
     if trajectories is None:
         raise ValueError(
             "trajectories is None; run the simulation with n_trajectories >= 1 to record some"

@@ -61,6 +61,12 @@ def test_trajectories_from_a_simulation_result():
     res = mdft.simulate(model, 50, stopping=mdft.FixedTime(20), rng=0, n_trajectories=3)
     ax = plot_trajectories(new_axes(), res.trajectories, labels="AB")
     assert len(ax.lines) == 3 * 2
+    thr = mdft.simulate(model, 50, stopping=mdft.Threshold(5.0), rng=0, n_trajectories=2)
+    ax = plot_trajectories(new_axes(), thr)  # the result itself: threshold drawn too
+    assert len(ax.lines) == 2 * 2 + 1
+    assert ax.lines[-1].get_ydata()[0] == 5.0
+    with pytest.raises(ValueError, match="trajectories is None"):
+        plot_trajectories(new_axes(), mdft.simulate(model, 10, stopping=mdft.FixedTime(5), rng=0))
 
 
 @pytest.mark.parametrize(
