@@ -77,7 +77,7 @@ def orthant_reference(mean, cov):
             out.append(st.norm.sf(0.0, loc=(L @ mean)[0], scale=np.sqrt((L @ cov @ L.T)[0, 0])))
         else:
             out.append(st.multivariate_normal.cdf(
-                np.zeros(n - 1), mean=-(L @ mean), cov=L @ cov @ L.T, abseps=1e-6, releps=1e-6,
+                np.zeros(n - 1), mean=-(L @ mean), cov=L @ cov @ L.T, abseps=1e-7, releps=1e-7,
                 rng=0))
     return np.array(out)
 
@@ -124,7 +124,7 @@ def test_probabilities_match_scipy_mvn(n, seed):
     cov = X @ X.T + 0.1 * np.eye(n)
     p = _probabilities_from_moments(mean, cov)
     ref = orthant_reference(mean, cov)
-    tol = 1e-12 if n <= 3 else 1e-4  # Owen's T is exact; n >= 4 uses quasi-Monte Carlo
+    tol = 1e-12 if n <= 3 else 5e-5  # Owen's T is exact; n >= 4 uses quasi-Monte Carlo
     np.testing.assert_allclose(p, ref, atol=tol)
     assert abs(p.sum() - 1.0) < 1e-12
 
