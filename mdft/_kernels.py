@@ -338,29 +338,53 @@ def block_table(table, block_size):
 
 
 @njit_inline
-def draw_pattern(state, cuts, cut0, size):
+def draw_pattern(state, cuts, size):
     """Attention pattern of ``size`` consecutive steps, ``p = ((j_0 J + j_1) J + ...)``.
 
-    Draws ``size`` attributes exactly as :func:`draw_attribute` does. With two
-    attributes the single cut ``cut0 = cuts[0]`` is passed in a register: read
-    from the array at every step it would be reloaded after each store to the
-    stream state.
+    Draws ``size`` attributes exactly as :func:`draw_attribute` does.
     """
     J = cuts.shape[0]
     p = 0
-    if J == 2:
-        for _s in range(size):
-            x = np.int64(next_u64(state) >> _SH11)
-            p = 2 * p + 1 + ((x - cut0) >> 63)
-    else:
-        for _s in range(size):
-            p = p * J + draw_attribute(state, cuts)
+    for _s in range(size):
+        p = p * J + draw_attribute(state, cuts)
     return p
+
+
+@njit_inline
+def draw_pattern2(state, cut0, size):
+    """:func:`draw_pattern` for two attributes, the single cut ``cut0`` held in a register.
+
+    Same draws and same result as ``draw_pattern(state, cuts, size)`` with
+    ``cuts[0] == cut0``; written out because, read from the array at every
+    step, the cut is reloaded after each store to the stream state.
+    """
+    p = 0
+    for _s in range(size):
+        x = np.int64(next_u64(state) >> _SH11)
+        p = 2 * p + 1 + ((x - cut0) >> 63)
+    return p
+
+
+@njit_inline
+def add_block(P, blocks, m, p):
+    """``P += blocks[m, p]``; written out for rows of width 4 (up to 4 options, padded)."""
+    if P.shape[0] == 4:
+        P[0] += blocks[m, p, 0]
+        P[1] += blocks[m, p, 1]
+        P[2] += blocks[m, p, 2]
+        P[3] += blocks[m, p, 3]
+    else:
+        for i in range(P.shape[0]):
+            P[i] += blocks[m, p, i]
 
 
 @njit
 def fixed_time_chunk(state, first, stop, blocks, block_size, n_steps, base, L, cuts, counts):
     """Fixed-time trials ``first <= k < stop`` through the exact decomposition of ``P(T)``.
+
+    With up to 4 options, ``blocks``, ``base`` and ``L`` may be padded with
+    zero rows to width 4 (the choice is taken among the first
+    ``counts.shape[0]`` entries); the additions are then written out.
 
     ``P(T) = base + sum_t S^(T-t) C M e_(j_t) + L z`` with ``base = S^T P0``,
     ``j_t`` the attribute attended at step ``t`` and ``z`` a standard normal
@@ -370,24 +394,41 @@ def fixed_time_chunk(state, first, stop, blocks, block_size, n_steps, base, L, c
     attention uniforms in step order (none for one attribute), then
     ``L.shape[1]`` normals, then one uniform only for a tie. Adds each
     choice to ``counts`` (n_options,).
+
+    Two attributes with blocks of 8 steps (the common case) get a loop of
+    constant length, which the compiler unrolls; a loop whose length is only
+    known at run time costs a mispredicted branch per block.
     """
     n = base.shape[0]
+    n_options = counts.shape[0]
     rank = L.shape[1]
-    n_blocks = blocks.shape[0]
+    n_full = n_steps // block_size
+    rest = n_steps - n_full * block_size
+    two = cuts.shape[0] == 2
     cut0 = cuts[0]
     P = np.empty(n)
     for _k in range(first, stop):
         for i in range(n):
             P[i] = base[i]
-        for m in range(n_blocks):
-            p = draw_pattern(state, cuts, cut0, min(block_size, n_steps - m * block_size))
-            for i in range(n):
-                P[i] += blocks[m, p, i]
+        if two:
+            if block_size == 8:
+                for m in range(n_full):
+                    add_block(P, blocks, m, draw_pattern2(state, cut0, 8))
+            else:
+                for m in range(n_full):
+                    add_block(P, blocks, m, draw_pattern2(state, cut0, block_size))
+            if rest > 0:
+                add_block(P, blocks, n_full, draw_pattern2(state, cut0, rest))
+        else:
+            for m in range(n_full):
+                add_block(P, blocks, m, draw_pattern(state, cuts, block_size))
+            if rest > 0:
+                add_block(P, blocks, n_full, draw_pattern(state, cuts, rest))
         for q in range(rank):
             z = standard_normal(state)
             for i in range(n):
                 P[i] += L[i, q] * z
-        counts[argmax_random_ties(P, state)] += 1
+        counts[argmax_random_ties(P[:n_options], state)] += 1
 
 
 @njit_parallel

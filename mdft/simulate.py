@@ -532,7 +532,8 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
 
     ``blocks`` holds the block sums of ``table[k, j] = S^k C M e_j``
     (:func:`mdft._kernels.block_table`), ``base = S^T P0`` and ``L`` (n, r)
-    satisfies ``L L^T = sigma2 sum_{k<T} S^k C C^T S^kT``. Returns None when
+    satisfies ``L L^T = sigma2 sum_{k<T} S^k C C^T S^kT``; with fewer than 4
+    options the three are padded with zeros to width 4. Returns None when
     the table would be too large or when something overflows (then the
     step-by-step kernel runs instead).
     """
@@ -552,7 +553,13 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
         blocks = _kernels.block_table(table, block_size)
     if not np.isfinite(blocks).all():
         return None
-    return blocks, block_size, np.ascontiguousarray(base), L
+    if n < 4:
+        # Pad to width 4: the kernel then adds rows with straight-line code.
+        pad = 4 - n
+        blocks = np.pad(blocks, ((0, 0), (0, 0), (0, pad)))
+        base = np.pad(base, (0, pad))
+        L = np.pad(L, ((0, pad), (0, 0)))
+    return blocks, block_size, np.ascontiguousarray(base), np.ascontiguousarray(L)
 
 
 def _block_size(n_steps: int, n_attributes: int, n_options: int) -> int:
