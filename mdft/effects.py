@@ -23,7 +23,9 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from ._validation import as_count, as_float_array, as_scalar
+from .closed_form import choice_probabilities
 from .model import MDFTModel, UnstableFeedbackWarning
+from .simulate import FixedTime, Threshold, simulate
 
 __all__ = [
     "ATTRACTION",
@@ -374,7 +376,7 @@ class ContextEffects:
 def default_stopping():
     """The default stopping rule of :func:`context_effects`: ``Threshold(17.5)``.
 
-    The canonical threshold of Hotaling et al. (2010), with at most 10,000
+    The threshold of the canonical parameter set, with at most 10,000
     steps per trial. Under it all three canonical effects appear; no single
     fixed deliberation time shows all three (``docs/concepts.md``, section 8).
 
@@ -383,8 +385,6 @@ def default_stopping():
     >>> default_stopping().theta
     17.5
     """
-    from .simulate import Threshold
-
     return Threshold(CANONICAL_THETA, max_steps=_DEFAULT_MAX_STEPS)
 
 
@@ -500,8 +500,6 @@ class _MonteCarlo:
         self.stopping, self.n_samples, self.gen = stopping, n_samples, gen
 
     def __call__(self, model, n_trajectories):
-        from .simulate import Threshold, simulate
-
         (child,) = self.gen.spawn(1)
         res = simulate(
             model, self.n_samples, stopping=self.stopping, rng=child,
@@ -524,11 +522,7 @@ class _Analytic:
         self.stopping = stopping
 
     def __call__(self, model, n_trajectories):
-        from .simulate import FixedTime
-
         if isinstance(self.stopping, FixedTime):
-            from .closed_form import choice_probabilities
-
             p = np.asarray(choice_probabilities(model, self.stopping.n_steps), dtype=float)
             p_undecided = 0.0
             rts = None
@@ -634,8 +628,6 @@ def _resolve_scenarios(scenarios) -> tuple:
 
 
 def _check_stopping(stopping) -> None:
-    from .simulate import FixedTime, Threshold
-
     if not isinstance(stopping, (FixedTime, Threshold)):
         raise TypeError(
             f"stopping must be mdft.FixedTime or mdft.Threshold (got {type(stopping).__name__})"
