@@ -246,3 +246,34 @@ def test_context_effects_selects_scenarios():
 def test_context_effects_rejects_bad_arguments(kwargs, error, match):
     with pytest.raises(error, match=match):
         mdft.context_effects(**kwargs)
+
+
+# ----------------------------------------------------------------------------- properties
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(deadline=None, max_examples=60)
+@given(
+    k3=st.lists(st.integers(0, 500), min_size=3, max_size=3),
+    k2=st.lists(st.integers(0, 500), min_size=2, max_size=2),
+    scenario=st.sampled_from([SIMILARITY, ATTRACTION, COMPROMISE]),
+)
+def test_effect_statistics_are_consistent(k3, k2, scenario):
+    n3, n2 = max(sum(k3), 1), max(sum(k2), 1)
+    tern = _Shares(np.array(k3) / n3, np.zeros(3), np.array(k3), n3, 1 - sum(k3) / n3)
+    bina = _Shares(np.array(k2) / n2, np.zeros(2), np.array(k2), n2, 1 - sum(k2) / n2)
+    r = _evaluate(scenario, tern, bina, None, "monte_carlo", n3, 3.0)
+    flipped = _evaluate(scenario.with_parameters(direction=-1), tern, bina, None,
+                        "monte_carlo", n3, 3.0)
+    if math.isnan(r.effect_size):
+        assert not r.shown and not flipped.shown
+        return
+    assert -1.0 <= r.effect_size <= 1.0
+    assert r.standard_error >= 0.0
+    if r.standard_error > 0:
+        assert r.shown == (r.effect_size > 3.0 * r.standard_error)
+        assert flipped.z == pytest.approx(-r.z)
+    else:  # a Monte Carlo estimate without spread is never called significant
+        assert not r.shown
+    assert not (r.shown and flipped.shown)
