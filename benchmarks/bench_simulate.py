@@ -31,14 +31,20 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-import numba
-import numpy as np
-from numba import prange
+# The NumPy yardstick is a one-thread figure: keep OpenBLAS to one thread (its
+# (n_trials, 3) x (3, 3) products otherwise wake a thread pool that, on a busy
+# machine, spins and multiplies their cost by 40). Set before NumPy is imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import prange  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -212,8 +218,10 @@ def main(argv=None):
     numba.set_num_threads(threads)
     one = M[0]
     n_single = 2000
+    gen_single = np.random.default_rng(6)  # an agent passes its Generator along
     t_single = best_time(
-        lambda: [mdft.decide(one, [0.5, 0.5], rng=6, **dkw) for _ in range(n_single)], 3)
+        lambda: [mdft.decide(one, [0.5, 0.5], rng=gen_single, **dkw) for _ in range(n_single)],
+        3)
     rows.append(("decide, one call each", t_single,
                  f"{t_single / n_single * 1e6:7.2f} us/decision"))
 

@@ -56,6 +56,9 @@ _MAX_PATTERNS = 256
 #: Largest number of recorded trajectories.
 MAX_TRAJECTORIES = 1000
 
+#: Largest number of recorded preference values (n_trajectories x (steps + 1) x n_options).
+_MAX_TRAJECTORY_VALUES = 20_000_000
+
 #: Sentinel of ``choices`` and ``decision_steps`` for an undecided trial.
 UNDECIDED = -1
 
@@ -296,6 +299,13 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
             f"(got {n_trajectories}); trajectories are meant for plotting a few trials"
         )
     threshold = isinstance(stopping, Threshold)
+    n_steps = stopping.max_steps if threshold else stopping.n_steps
+    if n_trajectories * (n_steps + 1) * model.n_options > _MAX_TRAJECTORY_VALUES:
+        raise ValueError(
+            f"n_trajectories={n_trajectories} would record {n_trajectories} x {n_steps + 1} x "
+            f"{model.n_options} preference values, more than {_MAX_TRAJECTORY_VALUES:,}; "
+            "record fewer trajectories or lower the number of steps"
+        )
     if threshold and np.max(model.P0) >= stopping.theta:
         raise ValueError(
             f"model.P0 must lie below the threshold theta={stopping.theta:g} "
@@ -303,7 +313,6 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
         )
     generator = np.random.default_rng(rng)
     states = _stream_states(generator, N_CHUNKS + 1)
-    n_steps = stopping.max_steps if threshold else stopping.n_steps
     theta = stopping.theta if threshold else math.inf
     S = np.ascontiguousarray(model.S, dtype=np.float64)
     C = np.ascontiguousarray(model.C, dtype=np.float64)

@@ -473,6 +473,9 @@ def test_simulate_validates(compromise):
         mdft.simulate(compromise, 10, stopping=fixed, n_trajectories=11)
     with pytest.raises(TypeError, match="n_trajectories must be an integer"):
         mdft.simulate(compromise, 10, stopping=fixed, n_trajectories=1.5)
+    with pytest.raises(ValueError, match="more than 20,000,000; record fewer trajectories"):
+        mdft.simulate(compromise, 1000, stopping=mdft.Threshold(5.0, max_steps=10_000),
+                      n_trajectories=1000)
     high = make_model(COMPROMISE, P0=[0.0, 5.0, 0.0])
     with pytest.raises(ValueError, match="model.P0 must lie below the threshold theta=5"):
         mdft.simulate(high, 10, stopping=mdft.Threshold(5.0))
