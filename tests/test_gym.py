@@ -220,3 +220,34 @@ def test_planning_on_adapted_worlds():
     # CliffWalking: the optimal path hugs the cliff, 13 steps of -1.
     cliff = from_gymnasium(_make_first("CliffWalking-v1", "CliffWalking-v0"))
     assert value_iteration(cliff).values[36] == pytest.approx(-13.0)
+
+
+def test_round_trip_of_a_gridworld_through_a_p_table():
+    """An MDP written out as a Gymnasium table and read back is the same MDP."""
+    from irl.gridworld import GridWorld
+    from irl.planning import soft_value_iteration
+
+    world = GridWorld(3, 0, 8, constrained_states=[4], p_slip=0.2)
+    mdp = world.constrained_mdp
+
+    class TableEnv:
+        P = {
+            s: {
+                a: [
+                    (float(p), int(s2), float(r), bool(mdp.terminal[s2]))
+                    for p, s2, r in zip(mdp.probs[s, a], mdp.next_states[s, a], mdp.rewards[s, a])
+                ]
+                for a in range(mdp.n_actions)
+            }
+            for s in range(mdp.n_states)
+        }
+        initial_state_distrib = np.array(mdp.start)
+
+    back = from_gymnasium(TableEnv(), features=world.features)
+    live = ~mdp.terminal
+    np.testing.assert_allclose(back.dense_transitions()[live], mdp.dense_transitions()[live], atol=1e-12)
+    np.testing.assert_allclose(back.expected_rewards()[live], mdp.expected_rewards()[live], atol=1e-12)
+    np.testing.assert_array_equal(back.terminal, mdp.terminal)
+    np.testing.assert_allclose(
+        soft_value_iteration(back, horizon=10).values, soft_value_iteration(mdp, horizon=10).values, atol=1e-10
+    )
