@@ -62,7 +62,7 @@ _DETERMINISTIC_TOL = 1e-12
 
 
 def _as_trajectories(demonstrations, n_states, n_actions):
-    """Integer (states, actions) pairs, len(states) == len(actions) + 1 (or equal: a prefix)."""
+    """Integer (states, actions) pairs with len(states) == len(actions) + 1."""
     if demonstrations is None:
         raise ValueError("demonstrations must hold at least one trajectory (got None)")
     if _is_flat_set(demonstrations):
@@ -97,7 +97,7 @@ def _as_trajectories(demonstrations, n_states, n_actions):
                 )
         if s.size == 0:
             raise ValueError(f"demonstration {i} has no state")
-        if s.size not in (a.size, a.size + 1):
+        if s.size != a.size + 1:
             raise ValueError(
                 f"demonstration {i} has {s.size} states and {a.size} actions; "
                 "it must have one more state than actions"
@@ -210,7 +210,7 @@ def _violated(trajs, mdp, trans_has_lookup):
     hit = np.zeros(mdp.n_features, dtype=bool)
     for s, a in trajs:
         hit |= np.asarray((feats.destination[[int(s[0])]] != 0).toarray()[0])
-        n = a.size if s.size > a.size else s.size - 1
+        n = a.size
         for t in range(n):
             key = (int(s[t]), int(a[t]), int(s[t + 1]))
             row = trans_has_lookup.get(key)
@@ -230,7 +230,7 @@ def _log_likelihoods(trajs, mdp, log_policy):
     with np.errstate(divide="ignore"):
         log_start = np.log(mdp.start)
     for i, (s, a) in enumerate(trajs):
-        n = min(a.size, s.size - 1) if s.size > a.size else a.size
+        n = a.size
         if n > H:
             raise ValueError(
                 f"demonstration {i} takes {n} steps, more than the horizon {H}; "
@@ -413,7 +413,7 @@ def infer_hard_constraints(
         raise TypeError("mdp must have transition features: each feature is a candidate constraint")
     _check_deterministic(mdp)
     trajs = _as_trajectories(demonstrations, mdp.n_states, mdp.n_actions)
-    longest = max(min(a.size, s.size - 1) if s.size > a.size else a.size for s, a in trajs)
+    longest = max(a.size for _, a in trajs)
     if horizon is None:
         horizon = max(1, 2 * longest)
     horizon = _as_count("horizon", horizon)

@@ -191,6 +191,8 @@ def test_bad_input():
         infer_hard_constraints(mdp, [([0, 1, 2, 5], [1])])
     with pytest.raises(TypeError, match="integer array"):
         infer_hard_constraints(mdp, [([0.0, 1.0], [1])])
+    with pytest.raises(ValueError, match="has no state"):
+        infer_hard_constraints(mdp, [(np.array([], int), np.array([], int))])
     with pytest.raises(TypeError, match=r"\(states, actions\) pair"):
         infer_hard_constraints(mdp, [5])
     with pytest.raises(TypeError, match="sequence of trajectories"):
