@@ -333,7 +333,7 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
                                     theta, threshold, trajectories, rec_choices, rec_steps)
         if threshold:
             longest = int(np.where(rec_steps < 0, n_steps, rec_steps).max())
-            trajectories = trajectories[:, : longest + 1]
+            trajectories = trajectories[:, : longest + 1].copy()
         trajectory_choices = _readonly(rec_choices.copy())
         trajectories = _readonly(trajectories)
 
