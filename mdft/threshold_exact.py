@@ -35,8 +35,9 @@ logger = logging.getLogger(__name__)
 _MAX_OPTIONS = 3
 _WIDTH = 5.5  # kernel windows reach this many noise standard deviations
 _MAX_STATES = 300_000
-_DIRECT_SOLVE_MAX_STATES = 20_000
+_DIRECT_SOLVE_MAX_STATES = 2_000
 _METHODS = ("propagate", "solve")
+_COARSE = 1.6  # warn when the spacing exceeds this many noise sds
 
 
 @dataclass(frozen=True)
@@ -143,11 +144,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, n_cells=None,
         ``"propagate"`` applies the chain step by step and returns the
         response-time distribution; it stops early once the undecided mass is
         below ``tol``. ``"solve"`` solves ``(I - Q) x = b`` with
-        scipy.sparse.linalg for the long-run (unlimited time) probabilities
-        and mean response times.
+        scipy.sparse.linalg (LU up to 2,000 states, GMRES above) for the
+        long-run (unlimited time) probabilities and mean response times.
     tol : float, default 1e-10
         ``"propagate"``: undecided mass at which propagation stops.
-        ``"solve"``: relative residual of the iterative solver.
+        ``"solve"``: relative residual of the iterative solver (GMRES).
     tail_tol : float, default 1e-7
         ``"propagate"``: once the undecided mass decays by a constant factor
         per step and the options' shares of each step's choices stay fixed
@@ -160,7 +161,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, n_cells=None,
         variance matches the model's instead of exceeding it by the spread of
         a uniform cell. Lowers the error at a given spacing (see the docs).
     max_iter : int, default 2000
-        Iteration limit of the iterative solver (``"solve"`` on large lattices).
+        Iteration limit of GMRES (``"solve"`` on lattices above 2,000 states),
+        per right-hand side.
 
     Returns
     -------
@@ -377,6 +379,14 @@ def _build_chain(model, theta, n_cells, variance_correction):
     sd_axis = np.sqrt(np.clip(np.diag(cov_z), 0.0, None))
     sd_axis[1] = sd_axis[1] if n > 2 else 0.0
     spac = np.array([edges1[1] - edges1[0], edges2[1] - edges2[0] if n > 2 else 0.0])
+    positive = sd_axis[sd_axis > 0]
+    if positive.size and h > _COARSE * positive.min():
+        warnings.warn(
+            f"the lattice spacing theta / n_cells = {h:.3g} exceeds {_COARSE} times the "
+            f"per-step noise sd {positive.min():.3g}: choice probabilities can be off by "
+            f"0.01 or more; raise n_cells above {math.ceil(theta / (_COARSE * positive.min()))}",
+            RuntimeWarning, stacklevel=3,
+        )
     if variance_correction:
         sd_cell = np.sqrt(np.clip(sd_axis**2 - spac**2 / 12.0, 0.0, None))
     else:
@@ -464,8 +474,10 @@ def _solve(chain, n, theta, n_cells, tol, max_iter):
             def callback(_, counter=counter):
                 counter[0] += 1
 
-            sol, info = spla.gmres(A, rhs, rtol=tol, atol=0.0, restart=50, maxiter=max_iter,
-                                   callback=callback, callback_type="pr_norm")
+            restart = min(50, max_iter)
+            sol, info = spla.gmres(A, rhs, rtol=tol, atol=0.0, restart=restart,
+                                   maxiter=-(-max_iter // restart), callback=callback,
+                                   callback_type="pr_norm")
             n_iter += counter[0]
             converged = converged and info == 0
             ys.append(sol)

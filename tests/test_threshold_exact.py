@@ -148,7 +148,7 @@ def test_refining_the_lattice_reduces_the_error():
     model = canonical([A, B], w=(0.6, 0.4))
     probs, times = nystrom_binary(model, 17.5, n_grid=2500)
     errors = []
-    for n_cells in (4, 8, 16, 32):
+    for n_cells in (8, 16, 32, 64):
         res = threshold_probabilities(model, 17.5, n_cells=n_cells, method="solve")
         errors.append(abs(res.mean_response_times[0] - times[0]))
     assert all(e2 < e1 for e1, e2 in zip(errors, errors[1:]))
@@ -196,6 +196,20 @@ def test_solve_and_propagate_agree_for_three_options():
     np.testing.assert_allclose(prop.probabilities, solved.probabilities, atol=1e-8)
     np.testing.assert_allclose(prop.mean_response_times[:2], solved.mean_response_times[:2],
                                rtol=1e-6)
+
+
+def test_iterative_solver_and_its_warning(monkeypatch):
+    from mdft import threshold_exact
+
+    model = canonical(SETS["compromise"])
+    direct = threshold_probabilities(model, 10.0, n_cells=6, method="solve")
+    monkeypatch.setattr(threshold_exact, "_DIRECT_SOLVE_MAX_STATES", 0)
+    gmres = threshold_probabilities(model, 10.0, n_cells=6, method="solve", tol=1e-12)
+    assert gmres.converged and gmres.n_iter > 0 and direct.n_iter == 0
+    np.testing.assert_allclose(gmres.probabilities, direct.probabilities, atol=1e-8)
+    with pytest.warns(RuntimeWarning, match="did not reach tol"):
+        bad = threshold_probabilities(model, 10.0, n_cells=6, method="solve", max_iter=1)
+    assert not bad.converged
 
 
 def test_geometric_tail_matches_full_propagation():
@@ -260,6 +274,12 @@ def test_bad_resolution_and_limits():
         threshold_probabilities(model, 5.0, variance_correction="yes")
     with pytest.raises(ValueError, match="lattice states"):
         threshold_probabilities(canonical(SETS["compromise"]), 17.5, n_cells=10_000)
+
+
+def test_coarse_lattice_warns():
+    # spacing 17.5 / 5 = 3.5 against a per-step noise sd of 1.5 in the lattice plane
+    with pytest.warns(RuntimeWarning, match=r"lattice spacing .* raise n_cells above 8"):
+        threshold_probabilities(canonical(SETS["compromise"]), 17.5, n_cells=5, max_steps=5)
 
 
 def test_too_many_options_points_to_simulation():
