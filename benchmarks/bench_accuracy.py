@@ -105,7 +105,8 @@ def run_setting(name, world, sizes, draws, args, pools=None):
             rows.setdefault(("MESC-IRL", n), []).append(row)
             if deterministic:
                 t0 = time.perf_counter()
-                base = infer_hard_constraints(world.nominal_mdp, demos, min_kl_decrease=args.min_kl_decrease)
+                base = infer_hard_constraints(world.nominal_mdp, demos, min_kl_decrease=args.min_kl_decrease,
+                                              max_constraints=args.max_constraints)
                 secs = time.perf_counter() - t0
                 row = scores(world, zeta_true, base.mask, base.mask.astype(float), args.chi)
                 with warnings.catch_warnings():
@@ -181,6 +182,8 @@ def main(argv=None):
     ap.add_argument("--n-model", type=int, default=100, help="model trajectories sampled for the KL")
     ap.add_argument("--max-iter", type=int, default=1000, help="L-BFGS-B iterations of MESC-IRL")
     ap.add_argument("--min-kl-decrease", type=float, default=0.1, help="stopping rule of the baseline")
+    ap.add_argument("--max-constraints", type=int, default=None,
+                    help="cap on the baseline's constraints (the original never exceeds 9)")
     ap.add_argument("--paper-demos", action="store_true",
                     help="deterministic setting: use the paper's 10 sets of 100 demonstrations")
     ap.add_argument("--json", help="also write the raw rows to this file")
