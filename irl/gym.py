@@ -54,6 +54,13 @@ def make_env(env_id: str, **kwargs):
     ------
     ImportError
         If gymnasium is not installed, with the command that installs it.
+
+    Examples
+    --------
+    >>> import importlib.util
+    >>> if importlib.util.find_spec("gymnasium") is not None:  # the optional extra
+    ...     mdp = from_gymnasium(make_env("FrozenLake-v1", is_slippery=False))
+    ...     assert (mdp.n_states, mdp.n_actions) == (16, 4)
     """
     gymnasium = _import_gymnasium()
     return gymnasium.make(env_id, **kwargs)
@@ -79,6 +86,15 @@ class TransitionTable:
         replaced by an absorbing self-loop with reward 0.
     start_distribution : ndarray of float64, shape (n_states,)
         The environment's initial state distribution.
+
+    Examples
+    --------
+    >>> class Coin:
+    ...     P = {0: {0: [(0.5, 0, 0.0, False), (0.5, 1, 1.0, True)]}, 1: {0: [(1.0, 1, 0.0, True)]}}
+    ...     initial_state_distrib = [1.0, 0.0]
+    >>> t = transition_table(Coin())
+    >>> t.n_states, t.n_actions, t.probs[0, 0].tolist(), t.terminal.tolist()
+    (2, 1, [0.5, 0.5], [False, True])
     """
 
     next_states: np.ndarray

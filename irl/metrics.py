@@ -157,6 +157,12 @@ class HardConstraintScores:
     -----
     Ratios whose denominator is zero take the conventions of
     :func:`hard_constraint_scores` (or its ``zero_division`` value).
+
+    Examples
+    --------
+    >>> s = hard_constraint_scores([True, False, False], [True, True, False])
+    >>> s.n_true_positive, s.n_false_positive, s.precision, s.false_discovery_rate
+    (1, 1, 0.5, 0.5)
     """
 
     n_true_positive: int
@@ -319,6 +325,12 @@ class SoftConstraintErrors:
         All candidates scored, those with a true cost ``c(x) != 0`` and those with ``c(x) = 0``.
     chi : float
         The tolerance used.
+
+    Examples
+    --------
+    >>> e = soft_constraint_errors([0, -50], [0.27, 0.82], [0.9, 0.8], chi=0.2)
+    >>> e.n_false_positive, e.false_positives, e.false_positive_share
+    (1, 0.5, 1.0)
     """
 
     false_positives: float

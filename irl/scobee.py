@@ -279,6 +279,16 @@ class HardConstraintResult:
         Horizon of the trajectory distribution.
     n_iter : int
         Greedy steps taken (candidates evaluated for addition).
+
+    Examples
+    --------
+    >>> from irl.gridworld import GridWorld
+    >>> world = GridWorld(3, 0, 2, p_slip=0.0)
+    >>> res = infer_hard_constraints(world.nominal_mdp, [([0, 3, 4, 5, 2], [2, 1, 1, 3])])
+    >>> res.n_constraints == len(res.names) == int(res.mask.sum()), res.stop_reason
+    (True, 'kl_decrease')
+    >>> bool(res.kl[-1] < res.kl_initial)
+    True
     """
 
     constraints: np.ndarray
@@ -294,13 +304,22 @@ class HardConstraintResult:
 
     @property
     def n_constraints(self) -> int:
-        """Number of inferred constraints."""
+        """Number of inferred constraints (``len(constraints)``)."""
         return int(self.constraints.size)
 
     def penalties(self, penalty=_HARD_PENALTY):
         """Penalty vector putting ``penalty`` on each inferred constraint, shape (n_features,).
 
         ``mdp.penalised(result.penalties())`` is the inferred constrained MDP.
+
+        Examples
+        --------
+        >>> from irl.gridworld import GridWorld
+        >>> world = GridWorld(3, 0, 2, p_slip=0.0)
+        >>> res = infer_hard_constraints(world.nominal_mdp, [([0, 3, 4, 5, 2], [2, 1, 1, 3])])
+        >>> pen = res.penalties(50.0)
+        >>> float(pen.max()), int((pen > 0).sum()) == res.n_constraints
+        (50.0, True)
         """
         penalty = _as_number("penalty", penalty, low=0.0)
         return np.where(self.mask, penalty, 0.0)
@@ -321,6 +340,15 @@ class HardConstraintResult:
             constraint has probability zero. Sample it with
             :func:`irl.demonstrations.sample_trajectories` and
             ``max_steps=result.horizon``.
+
+        Examples
+        --------
+        >>> from irl.gridworld import GridWorld
+        >>> world = GridWorld(3, 0, 2, p_slip=0.0)
+        >>> res = infer_hard_constraints(world.nominal_mdp, [([0, 3, 4, 5, 2], [2, 1, 1, 3])], horizon=6)
+        >>> pol = res.policy(world.nominal_mdp)
+        >>> pol.shape, float(pol[0, 0, 1])  # moving right from 0 enters the forbidden cell 1
+        ((6, 9, 8), 0.0)
         """
         if not isinstance(mdp, MDP) or mdp.features is None:
             raise TypeError(f"mdp must be an irl.MDP with features (got {type(mdp).__name__})")
