@@ -69,6 +69,8 @@ def _as_mask(name: str, value) -> np.ndarray:
             )
     if arr.ndim != 1:
         raise ValueError(f"{name} must be a 1-d array (got shape {arr.shape}); flatten it first")
+    if arr.size == 0:
+        raise ValueError(f"{name} must not be empty: there are no candidate constraints to score")
     return arr.astype(bool)
 
 

@@ -99,6 +99,8 @@ def test_hard_bad_input():
         hard_constraint_scores(["a", "b"], [True, False])
     with pytest.raises(TypeError, match="booleans"):
         hard_constraint_scores([None, True], [True, False])
+    with pytest.raises(ValueError, match="true must not be empty"):
+        hard_constraint_scores([], [])
     with pytest.raises(TypeError, match="zero_division"):
         hard_constraint_scores([True], [True], zero_division="warn")
 
