@@ -367,15 +367,42 @@ def draw_pattern2(state, cut0, size):
 
 @njit_inline
 def add_block(P, blocks, m, p):
-    """``P += blocks[m, p]``; written out for rows of width 4 (up to 4 options, padded)."""
-    if P.shape[0] == 4:
-        P[0] += blocks[m, p, 0]
-        P[1] += blocks[m, p, 1]
-        P[2] += blocks[m, p, 2]
-        P[3] += blocks[m, p, 3]
+    """``P += blocks[m, p]``."""
+    for i in range(P.shape[0]):
+        P[i] += blocks[m, p, i]
+
+
+@njit_inline
+def add_row4(a0, a1, a2, a3, blocks, m, p):
+    """``(a0, a1, a2, a3) + blocks[m, p]`` for rows of width 4."""
+    return (a0 + blocks[m, p, 0], a1 + blocks[m, p, 1], a2 + blocks[m, p, 2],
+            a3 + blocks[m, p, 3])
+
+
+@njit_inline
+def attention_sum2x4(state, blocks, base, block_size, n_full, rest, cut0):
+    """Attention part of ``P(T)`` for two attributes and rows of width 4, in registers.
+
+    Same draws and same additions, in the same order, as the general path of
+    :func:`fixed_time_chunk`; the four sums live in local variables, so no
+    store to memory interrupts the stream of draws.
+    """
+    a0 = base[0]
+    a1 = base[1]
+    a2 = base[2]
+    a3 = base[3]
+    if block_size == 8:
+        for m in range(n_full):
+            a0, a1, a2, a3 = add_row4(a0, a1, a2, a3, blocks, m,
+                                      draw_pattern2(state, cut0, 8))
     else:
-        for i in range(P.shape[0]):
-            P[i] += blocks[m, p, i]
+        for m in range(n_full):
+            a0, a1, a2, a3 = add_row4(a0, a1, a2, a3, blocks, m,
+                                      draw_pattern2(state, cut0, block_size))
+    if rest > 0:
+        a0, a1, a2, a3 = add_row4(a0, a1, a2, a3, blocks, n_full,
+                                  draw_pattern2(state, cut0, rest))
+    return a0, a1, a2, a3
 
 
 @njit
@@ -383,8 +410,9 @@ def fixed_time_chunk(state, first, stop, blocks, block_size, n_steps, base, L, c
     """Fixed-time trials ``first <= k < stop`` through the exact decomposition of ``P(T)``.
 
     With up to 4 options, ``blocks``, ``base`` and ``L`` may be padded with
-    zero rows to width 4 (the choice is taken among the first
-    ``counts.shape[0]`` entries); the additions are then written out.
+    zeros to width 4 (the choice is taken among the first
+    ``counts.shape[0]`` entries); with two attributes the sums are then kept
+    in registers (:func:`attention_sum2x4`).
 
     ``P(T) = base + sum_t S^(T-t) C M e_(j_t) + L z`` with ``base = S^T P0``,
     ``j_t`` the attribute attended at step ``t`` and ``z`` a standard normal
@@ -405,12 +433,16 @@ def fixed_time_chunk(state, first, stop, blocks, block_size, n_steps, base, L, c
     n_full = n_steps // block_size
     rest = n_steps - n_full * block_size
     two = cuts.shape[0] == 2
+    width4 = n == 4 and blocks.shape[2] == 4
     cut0 = cuts[0]
     P = np.empty(n)
     for _k in range(first, stop):
         for i in range(n):
             P[i] = base[i]
-        if two:
+        if two and width4:
+            P[0], P[1], P[2], P[3] = attention_sum2x4(state, blocks, base, block_size, n_full,
+                                                      rest, cut0)
+        elif two:
             if block_size == 8:
                 for m in range(n_full):
                     add_block(P, blocks, m, draw_pattern2(state, cut0, 8))
