@@ -6,7 +6,7 @@ world (the soft policy of its MDP, as in the paper), this reports
 
 * MESC-IRL (:func:`irl.mesc.mesc_irl`): precision, recall and false positive
   rate of the constraints with ``zeta >= threshold`` (default 0.6, the
-  paper's), the paper's "false positive rate" (really the false discovery
+  paper's; several thresholds give one row each), the paper's "false positive rate" (really the false discovery
   rate, 1 - precision), the soft false positives / negatives at ``chi``
   (paper Section 3.3), and the KL divergence from the state-action visitation
   of held-out demonstrations to that of trajectories of the learned model;
@@ -97,12 +97,15 @@ def run_setting(name, world, sizes, draws, args, pools=None):
                 warnings.simplefilter("ignore", RuntimeWarning)
                 res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter)
             secs = time.perf_counter() - t0
-            row = scores(world, zeta_true, res.zeta >= args.threshold, res.zeta, args.chi)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 model = generate_demonstrations(res.constrained, args.n_model, rng=g_mesc)
-            row.update(kl=kl_to(held, model, world), seconds=secs, converged=res.converged)
-            rows.setdefault(("MESC-IRL", n), []).append(row)
+            kl = kl_to(held, model, world)
+            for thr in args.thresholds:
+                row = scores(world, zeta_true, res.zeta >= thr, res.zeta, args.chi)
+                row.update(kl=kl, seconds=secs, converged=res.converged)
+                label = "MESC-IRL" if len(args.thresholds) == 1 else f"MESC z>={thr:g}"
+                rows.setdefault((label, n), []).append(row)
             if deterministic:
                 t0 = time.perf_counter()
                 base = infer_hard_constraints(world.nominal_mdp, demos, min_kl_decrease=args.min_kl_decrease,
@@ -154,8 +157,8 @@ def format_table(title, rows, draws_note):
     lines = [f"\n## {title}  ({draws_note})", ""]
     head = f"{'method':<17} {'n':>4} " + " ".join(f"{c:>15}" for c in COLUMNS)
     lines += [head, "-" * len(head)]
-    order = {"MESC-IRL": 0, "Scobee & Sastry": 1, "original (file)": 2, "true model": 3}
-    for (method, n) in sorted(rows, key=lambda k: (k[1], order.get(k[0], 9))):
+    order = {"Scobee & Sastry": 1, "original (file)": 2, "true model": 3}
+    for (method, n) in sorted(rows, key=lambda k: (k[1], order.get(k[0], 0), k[0])):
         vals = rows[(method, n)]
         cells = []
         for c in COLUMNS:
@@ -176,7 +179,8 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=10, help="independent draws per size")
     ap.add_argument("--settings", default="det,slip", help="det (p_slip 0), slip (p_slip 0.1), or both")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threshold", type=float, default=0.6, help="zeta threshold for a hard constraint")
+    ap.add_argument("--threshold", default="0.6",
+                    help="zeta threshold(s) for a hard constraint, e.g. 0.4,0.5,0.6,0.7 as in the paper's appendix")
     ap.add_argument("--chi", type=float, default=0.2, help="tolerance of the soft false positives/negatives")
     ap.add_argument("--n-heldout", type=int, default=100, help="held-out demonstrations per draw")
     ap.add_argument("--n-model", type=int, default=100, help="model trajectories sampled for the KL")
@@ -189,6 +193,7 @@ def main(argv=None):
     ap.add_argument("--json", help="also write the raw rows to this file")
     ap.add_argument("--progress", action="store_true", help="report progress on stderr")
     args = ap.parse_args(argv)
+    args.thresholds = [float(x) for x in args.threshold.split(",")]
     sizes = [1, 5, 20] if args.quick else [int(x) for x in args.sizes.split(",")]
     draws = 3 if args.quick else args.draws
     settings = [s.strip() for s in args.settings.split(",")]
