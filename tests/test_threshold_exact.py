@@ -29,6 +29,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.special import ndtr
 
 import mdft
@@ -220,6 +222,29 @@ def test_geometric_tail_matches_full_propagation():
     assert tail.n_iter < full.n_iter
     np.testing.assert_allclose(tail.probabilities, full.probabilities, atol=1e-7)
     np.testing.assert_allclose(tail.rt_pmf, full.rt_pmf, atol=1e-8)
+
+
+@settings(deadline=None, max_examples=15)
+@given(
+    a=st.lists(st.floats(0.0, 4.0), min_size=2, max_size=2),
+    b=st.lists(st.floats(0.0, 4.0), min_size=2, max_size=2),
+    w0=st.floats(0.05, 0.95),
+    phi2=st.floats(0.0, 0.1),
+    sigma2=st.floats(0.3, 3.0),
+    theta=st.floats(2.0, 15.0),
+)
+def test_binary_invariants(a, b, w0, phi2, sigma2, theta):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = MDFTModel([a, b], [w0, 1 - w0], phi1=0.02, phi2=phi2, beta=2.0, sigma2=sigma2)
+        swapped = MDFTModel([b, a], [w0, 1 - w0], phi1=0.02, phi2=phi2, beta=2.0, sigma2=sigma2)
+        res = threshold_probabilities(model, theta, max_steps=400, n_cells=20)
+        res_sw = threshold_probabilities(swapped, theta, max_steps=400, n_cells=20)
+    assert np.all(res.probabilities >= 0) and 0.0 <= res.p_undecided <= 1.0
+    assert res.probabilities.sum() + res.p_undecided == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(res.rt_pmf.sum(axis=0), res.probabilities, atol=1e-12)
+    # swapping the two options mirrors the one-dimensional lattice exactly
+    np.testing.assert_allclose(res_sw.probabilities, res.probabilities[::-1], atol=1e-9)
 
 
 def test_permuting_options_permutes_probabilities():
