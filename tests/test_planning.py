@@ -196,3 +196,38 @@ def test_inputs_not_mutated():
     before = pol.copy()
     state_action_visitation(mdp, pol)
     np.testing.assert_array_equal(pol, before)
+
+
+_JIT_SCRIPT = r"""
+import json, numpy as np
+from irl import GridWorld, generate_demonstrations, MESCObjective, soft_value_iteration, value_iteration
+w = GridWorld(3, 0, 8, blue=[4], constrained_states=[5], p_slip=0.2)
+d = generate_demonstrations(w.constrained_mdp, 5, rng=0)
+obj = MESCObjective(w.nominal_mdp, d, horizon=6)
+val, grad = obj(np.linspace(0.0, 2.0, w.n_features))
+print(json.dumps({
+    "v": value_iteration(w.constrained_mdp).values.tolist(),
+    "soft": soft_value_iteration(w.constrained_mdp, horizon=4).values.tolist(),
+    "states": d.states.tolist(), "val": val, "grad": grad.tolist(),
+}))
+"""
+
+
+def test_compiled_and_pure_python_agree():
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    out = {}
+    for flag in ("0", "1"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=flag, PYTHONPATH=root)
+        run = subprocess.run([sys.executable, "-c", _JIT_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        out[flag] = json.loads(run.stdout)
+    assert out["0"]["states"] == out["1"]["states"]
+    for key in ("v", "soft", "grad"):
+        np.testing.assert_allclose(out["0"][key], out["1"][key], rtol=1e-12, atol=1e-12)
+    assert out["0"]["val"] == pytest.approx(out["1"]["val"], rel=1e-12)
