@@ -54,12 +54,12 @@ def compromise():
     return make_model(COMPROMISE)
 
 
-def assert_within_3se(p, q, n_p, n_q):
-    """Each |p_i - q_i| within 3 standard errors of the difference of two frequencies."""
+def assert_within_3se(p, q, n_p, n_q, n_se=3.0):
+    """Each |p_i - q_i| within ``n_se`` standard errors of the difference of two frequencies."""
     p, q = np.asarray(p, float), np.asarray(q, float)
     pooled = (p * n_p + q * n_q) / (n_p + n_q)
     se = np.sqrt(pooled * (1 - pooled) * (1 / n_p + 1 / n_q))
-    tol = 3 * np.maximum(se, 1e-12)
+    tol = n_se * np.maximum(se, 1e-12)
     assert np.all(np.abs(p - q) <= tol), (p, q, tol)
 
 
@@ -391,7 +391,9 @@ def test_probabilities_and_undecided_sum_to_one(M, w0, threshold, seed):
     assert res.counts.sum() + res.n_undecided == 500
 
 
-@settings(max_examples=8, deadline=None)
+# Monte Carlo properties: the examples are derandomised (a fixed set, like the seeds), and
+# the permutation test, which makes about 25 comparisons, allows 4 standard errors.
+@settings(max_examples=8, deadline=None, derandomize=True)
 @given(M=option_rows, perm_seed=st.integers(0, 1000), threshold=st.booleans())
 def test_permuting_options_permutes_probabilities(M, perm_seed, threshold):
     M = np.array(M)
@@ -400,10 +402,10 @@ def test_permuting_options_permutes_probabilities(M, perm_seed, threshold):
     n = 20_000
     a = mdft.simulate(make_model(M), n, stopping=stopping, rng=1)
     b = mdft.simulate(make_model(M[perm]), n, stopping=stopping, rng=2)
-    assert_within_3se(a.probabilities[perm], b.probabilities, n, n)
+    assert_within_3se(a.probabilities[perm], b.probabilities, n, n, n_se=4.0)
 
 
-@settings(max_examples=10, deadline=None)
+@settings(max_examples=10, deadline=None, derandomize=True)
 @given(M=option_rows, worse=st.floats(2.0, 4.0), threshold=st.booleans())
 def test_clearly_dominated_option_is_almost_never_chosen(M, worse, threshold):
     M = np.array(M)
