@@ -52,8 +52,10 @@ __all__ = [
 _VAR_RTOL = 1e-12
 #: Relative size (to the overall scale of the means) below which a mean difference is a tie.
 _TIE_RTOL = 1e-9
-#: Tolerance on ``|sum(p) - 1|`` for the exact (n <= 3) computation.
+#: Tolerance on ``|sum(p) - 1|`` for the exact (n <= 3) computation and for the
+#: quasi-Monte Carlo one (n >= 4; or ten times its estimated error if larger).
 _SUM_TOL_EXACT = 1e-8
+_SUM_TOL_QMC = 1e-5
 #: Number of scramblings and points per scrambling of the quasi-Monte Carlo rule.
 _QMC_SHIFTS = 8
 _QMC_POINTS = 512
@@ -272,7 +274,7 @@ def _probabilities_from_moments(mean, cov):
         err += e
 
     total = p_class.sum()
-    tol = max(_SUM_TOL_EXACT, 10.0 * err)
+    tol = _SUM_TOL_EXACT if k <= 3 else max(_SUM_TOL_QMC, 10.0 * err)
     if not np.isfinite(total) or abs(total - 1.0) > tol:
         warnings.warn(
             f"closed-form choice probabilities sum to {total:.10g} instead of 1 (tolerance "
