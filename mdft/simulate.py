@@ -513,7 +513,8 @@ def _stream_states(generator: np.random.Generator, n_streams: int) -> np.ndarray
     """
     states = generator.integers(0, 2**64, size=(n_streams, 4), dtype=np.uint64,
                                 endpoint=False)
-    states[~states.any(axis=1), 0] = np.uint64(0x9E3779B97F4A7C15)
+    if not states.any(axis=1).all():
+        states[~states.any(axis=1), 0] = np.uint64(0x9E3779B97F4A7C15)
     return states
 
 
@@ -529,9 +530,12 @@ def _attention_cuts(w: np.ndarray) -> np.ndarray:
     """
     w = np.asarray(w, dtype=np.float64)
     cumw = np.cumsum(w, axis=-1)
-    J = w.shape[-1]
-    last = J - 1 - np.argmax(w[..., ::-1] > 0, axis=-1)
-    cumw[np.arange(J) >= np.expand_dims(last, -1)] = 1.0
+    if w[..., -1].min() > 0:
+        cumw[..., -1] = 1.0
+    else:
+        J = w.shape[-1]
+        last = J - 1 - np.argmax(w[..., ::-1] > 0, axis=-1)
+        cumw[np.arange(J) >= np.expand_dims(last, -1)] = 1.0
     # cumw * 2**53 is exact (a power-of-two scaling) and at most 2**53.
     return np.ascontiguousarray(np.ceil(cumw * 2.0**53).astype(np.int64))
 
@@ -633,12 +637,12 @@ def _batch_attention(w, n_decisions: int, n_attributes: int) -> np.ndarray:
             f"w must have shape ({n_attributes},) or ({n_decisions}, {n_attributes}) to match "
             f"M (got shape {np.shape(w)})"
         )
-    if (arr < 0).any():
+    if arr.min() < 0:
         bad = arr[(arr < 0).any(axis=1)][0]
         raise ValueError(f"w must be non-negative (got {bad.tolist()})")
     totals = arr.sum(axis=1)
-    off = np.abs(totals - 1.0) > 1e-6
-    if off.any():
+    if np.abs(totals - 1.0).max() > 1e-6:
+        off = np.abs(totals - 1.0) > 1e-6
         raise ValueError(
             f"w must sum to 1 (got {totals[off][0]:.6g}); pass normalised attention weights"
         )
