@@ -44,6 +44,7 @@ def main(argv=None):
     ap.add_argument("--p-slip", type=float, default=0.1)
     ap.add_argument("--horizon", type=int, default=None, help="default: twice the longest demonstration")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-precondition", action="store_true", help="run L-BFGS-B on the raw penalties")
     args = ap.parse_args(argv)
 
     # compile the kernels on a small world first, so the timings below exclude compilation
@@ -65,7 +66,7 @@ def main(argv=None):
     rss_before = peak_rss_mb()
 
     t0, c0 = time.perf_counter(), time.process_time()
-    res = mesc_irl(nominal, demos, horizon=args.horizon)
+    res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=not args.no_precondition)
     t_fit, c_fit = time.perf_counter() - t0, time.process_time() - c0
     rss_after = peak_rss_mb()
 
@@ -80,7 +81,7 @@ def main(argv=None):
           f"max {demos.lengths.max()})")
     print(f"MESC-IRL fit              {t_fit:8.2f} s  (horizon {res.horizon}, {res.n_iter} iterations, "
           f"{res.n_evaluations} evaluations, {t_fit / max(res.n_evaluations, 1) * 1e3:.0f} ms each, "
-          f"converged {res.converged})")
+          f"converged {res.converged}, preconditioned {not args.no_precondition})")
     print(f"MESC-IRL fit, CPU time    {c_fit:8.2f} s  (the wall time on an otherwise idle core)")
     print(f"log-likelihood per demonstration {res.objective:.3f}")
     print(f"true constraints with zeta >= 0.6: {int((found & truth).sum())} of {int(truth.sum())}; "

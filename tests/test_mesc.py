@@ -149,6 +149,8 @@ def test_bounds_and_ridge():
     free = mesc_irl(world.nominal_mdp, demos)
     assert np.linalg.norm(ridge.penalties) < np.linalg.norm(free.penalties)
     assert free.objective >= ridge.objective
+    scaled = mesc_irl(world.nominal_mdp, demos, precondition=True)
+    assert scaled.converged and scaled.objective == pytest.approx(free.objective, abs=5e-3)
 
 
 def test_non_convergence_warns():
