@@ -38,6 +38,7 @@ _MAX_STATES = 300_000
 _DIRECT_SOLVE_MAX_STATES = 2_000
 _METHODS = ("propagate", "solve")
 _COARSE = 1.6  # warn when the spacing exceeds this many noise sds
+_DEFAULT_CELLS = {1: 100, 2: 25, 3: 8}  # default n_cells by lattice dimension
 
 
 @dataclass(frozen=True)
@@ -136,8 +137,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, n_cells=None,
         ``p_undecided``. Ignored by ``method="solve"``.
     n_cells : int, optional
         Lattice resolution: cells per ``theta`` along each axis (spacing
-        ``theta / n_cells``), at least 4. Defaults to 100 for two options and
-        8 for three (errors below 1e-4 and about 2e-3 in the choice
+        ``theta / n_cells``), at least 4. The default depends on the number
+        of lattice dimensions: 100 for two options whose summed preference
+        stays constant (one dimension), 25 for two options otherwise, 8 for
+        three options (errors below 1e-4 and about 2e-3 in the choice
         probabilities of the canonical sets). The error falls roughly with the square of the spacing
         (``docs/threshold_exact.md`` has a measured table).
     method : {"propagate", "solve"}, default "propagate"
@@ -226,7 +229,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, n_cells=None,
         raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
     max_steps = as_count("max_steps", max_steps, low=1)
     if n_cells is None:
-        n_cells = 100 if n == 2 else 8
+        # by the number of lattice dimensions: the zero-sum plane, plus the sum if it moves
+        dims = n - 1 + (0 if _sum_is_constant(np.asarray(model.S), float(np.sum(model.P0))) else 1)
+        n_cells = _DEFAULT_CELLS[dims]
     n_cells = as_count("n_cells", n_cells, low=4)
     tol = as_scalar("tol", tol, low=0.0, low_inclusive=False, high=0.1)
     max_iter = as_count("max_iter", max_iter, low=1)
@@ -309,6 +314,12 @@ def _sum_bounds(S, theta, s0):
     )
 
 
+def _sum_is_constant(S, s0):
+    """True when ``1^T S P = 1^T P`` along every path from a start with sum ``s0``."""
+    c = S.sum(axis=0)
+    return bool(np.ptp(c) <= 1e-12 and abs(c[0] * s0 - s0) <= 1e-12 * max(1.0, abs(s0)))
+
+
 def _build_chain(model, theta, n_cells, variance_correction):
     n = model.n_options
     S = np.ascontiguousarray(model.S, dtype=np.float64)
@@ -316,8 +327,7 @@ def _build_chain(model, theta, n_cells, variance_correction):
     E = _basis(model)
     h = theta / n_cells
     s0 = float(np.sum(model.P0))
-    c = S.sum(axis=0)
-    if np.ptp(c) <= 1e-12 and abs(c[0] * s0 - s0) <= 1e-12 * max(1.0, abs(s0)):
+    if _sum_is_constant(S, s0):
         s_lo = s_hi = s0
     else:
         s_lo, s_hi = _sum_bounds(S, theta, s0)
@@ -379,6 +389,14 @@ def _build_chain(model, theta, n_cells, variance_correction):
     sd_axis = np.sqrt(np.clip(np.diag(cov_z), 0.0, None))
     sd_axis[1] = sd_axis[1] if n > 2 else 0.0
     spac = np.array([edges1[1] - edges1[0], edges2[1] - edges2[0] if n > 2 else 0.0])
+    if np.any(sd_axis[: n - 1] == 0.0):
+        warnings.warn(
+            "the preference noise is zero along a lattice axis (sigma2 = 0): nothing smooths "
+            "the rounding of each step to a cell centre, so the result is exact only when every "
+            "reachable preference lies on a cell centre and is otherwise approximate; "
+            "check it against mdft.simulate",
+            RuntimeWarning, stacklevel=3,
+        )
     positive = sd_axis[sd_axis > 0]
     if positive.size and h > _COARSE * positive.min():
         warnings.warn(

@@ -103,7 +103,8 @@ def test_gamblers_ruin_is_reproduced_exactly(method):
     model = plain([[1, 0], [0, 1]], [p, q], sigma2=0.0)
     # 2*sqrt(2)*35 cells rounds up to 99 = 9 * 11: the cell centres lie on the
     # walk's positions sqrt(2) * k in the lattice coordinate (P1 - P2) / sqrt(2)
-    res = threshold_probabilities(model, 4.5, n_cells=35, method=method)
+    with pytest.warns(RuntimeWarning, match="noise is zero"):
+        res = threshold_probabilities(model, 4.5, n_cells=35, method=method)
     r, N = q / p, 5
     win = (1 - r**N) / (1 - r ** (2 * N))
     duration = N / (q - p) - 2 * N / (q - p) * win
@@ -305,6 +306,23 @@ def test_coarse_lattice_warns():
     # spacing 17.5 / 5 = 3.5 against a per-step noise sd of 1.5 in the lattice plane
     with pytest.warns(RuntimeWarning, match=r"lattice spacing .* raise n_cells above 8"):
         threshold_probabilities(canonical(SETS["compromise"]), 17.5, n_cells=5, max_steps=5)
+
+
+def test_default_resolution_follows_the_lattice_dimension():
+    assert threshold_probabilities(canonical([A, B]), 5.0, max_steps=5).n_cells == 100
+    S = np.array([[0.95, -0.02], [-0.05, 0.97]])  # unequal column sums: the sum moves
+    moving = MDFTModel.from_matrices([A, B], [0.6, 0.4], S=S)
+    res = threshold_probabilities(moving, 5.0, max_steps=5)
+    assert res.n_cells == 25 and res.n_levels > 1
+    assert threshold_probabilities(canonical(SETS["compromise"]), 5.0, max_steps=5).n_cells == 8
+
+
+def test_two_options_with_a_moving_sum_agree_with_monte_carlo():
+    S = np.array([[0.95, -0.02], [-0.05, 0.97]])
+    model = MDFTModel.from_matrices([A, B], [0.6, 0.4], S=S)
+    exact = threshold_probabilities(model, 10.0)
+    sim = mdft.simulate(model, 40_000, stopping=mdft.Threshold(10.0), rng=3)
+    np.testing.assert_allclose(exact.probabilities, sim.probabilities, atol=0.01)
 
 
 def test_too_many_options_points_to_simulation():
