@@ -10,8 +10,9 @@ Usage::
 
 For every problem of a set the attention weights ``w`` are estimated by maximum likelihood
 with the other parameters at their true values (the thesis's set-up for learning ``w``);
-with ``--with-M`` the evaluations ``M`` are estimated as well, from a start perturbed from
-the truth. Reported per set: the mean squared error between fitted and observed choice
+with ``--with-M`` the evaluations ``M`` are estimated (with ``w`` known, and jointly with
+``w``) on the multi-subset sets, from a start perturbed from the truth by N(0, 0.5) noise,
+the first row of ``M`` anchoring its location (``docs/fitting.md``, section 4). Reported per set: the mean squared error between fitted and observed choice
 shares (``mse``: mean over all subset x option cells; ``mse_thesis``: squared errors summed
 over the options of a subset and averaged over subsets, the thesis's definition), the
 same at the true parameters (the floor set by sampling noise), the mean and largest
@@ -186,6 +187,7 @@ def main(argv=None):
     ap.add_argument("--threshold", action="store_true", help="also the pref_based sets")
     ap.add_argument("--no-sushi", action="store_true")
     ap.add_argument("--no-thesis", action="store_true", help="only the SUSHI part")
+    ap.add_argument("--no-fixed-time", action="store_true", help="skip the time_based sets")
     ap.add_argument("--data", default=os.environ.get("PYMDFT_DATA", ROOT.parent / "shared" / "data"))
     args = ap.parse_args(argv)
     folder = Path(args.data) / "mdft-thesis"
@@ -207,14 +209,15 @@ def thesis(folder, n, args):
     print(f"# thesis data sets, {n} problems per set; w fitted with the other parameters true")
     print(f"{'set':<42s} {'fit':<4s} {'n':>3s} {'mse':>9s} {'mse_thesis':>10s} "
           f"{'floor':>10s} {'|dw|':>7s} {'max':>6s} {'<=.05':>6s} {'s/prob':>7s} {'conv':>5s}")
-    for name in FIXED_TIME_SETS:
+    for name in [] if args.no_fixed_time else FIXED_TIME_SETS:
         rows = run_set(folder / "time_based" / name, n, ["w"])
         print(summarise("time_based/" + name, ["w"], rows), flush=True)
     if args.with_M:
-        for name in M_SETS:
-            rows = run_set(folder / "time_based" / name, min(n, 3 if args.quick else n),
-                           ["w", "M"], n_starts=1)
-            print(summarise("time_based/" + name, ["w", "M"], rows), flush=True)
+        for params in (["M"], ["w", "M"]):
+            for name in M_SETS:
+                rows = run_set(folder / "time_based" / name, min(n, 3 if args.quick else n),
+                               params, n_starts=1)
+                print(summarise("time_based/" + name, params, rows), flush=True)
     if args.threshold:
         for name in ["set_nopts3_ncomb1_nproblem50_no3.mat", "set_nopts7_ncomb3_nproblem50_no3.mat"]:
             rows = run_set(folder / "pref_based" / name, min(n, 3 if args.quick else n), ["w"],

@@ -536,7 +536,7 @@ def _fixed_time_probabilities(M, w, phi1, phi2, beta, sigma2, n_steps):
 
 
 # ============================================================== exact mixture (conditional MC)
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MixtureProbabilities:
     """Fixed-time choice probabilities without the normal approximation of ``P(T)``.
 

@@ -29,7 +29,7 @@ from .fit import ChoiceData
 __all__ = ["SushiData", "ThesisProblem", "load_sushi", "load_thesis_set"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ThesisProblem:
     """One problem of a thesis data set, with its true parameters and observed shares.
 
@@ -87,7 +87,7 @@ class ThesisProblem:
         return mdft.Threshold(self.theta)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SushiData:
     """The SUSHI-derived set: ten sushi on two attributes, training and held-out triples.
 

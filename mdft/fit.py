@@ -97,7 +97,7 @@ def _as_counts(name, value, size):
     return out
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True, init=False, eq=False)
 class ChoiceData:
     """Observed choices on subsets of a common option set.
 
@@ -340,7 +340,7 @@ class ChoiceData:
 
 
 # ============================================================================ result
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FitResult:
     """Result of :func:`fit`.
 
