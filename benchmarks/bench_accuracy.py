@@ -95,7 +95,7 @@ def run_setting(name, world, sizes, draws, args, pools=None):
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter)
+                res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter, l2=args.l2)
             secs = time.perf_counter() - t0
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
@@ -185,6 +185,7 @@ def main(argv=None):
     ap.add_argument("--n-heldout", type=int, default=100, help="held-out demonstrations per draw")
     ap.add_argument("--n-model", type=int, default=100, help="model trajectories sampled for the KL")
     ap.add_argument("--max-iter", type=int, default=1000, help="L-BFGS-B iterations of MESC-IRL")
+    ap.add_argument("--l2", type=float, default=0.0, help="ridge weight of MESC-IRL (0: the paper's objective)")
     ap.add_argument("--min-kl-decrease", type=float, default=0.1, help="stopping rule of the baseline")
     ap.add_argument("--max-constraints", type=int, default=None,
                     help="cap on the baseline's constraints (the original never exceeds 9)")
