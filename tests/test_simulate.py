@@ -123,17 +123,22 @@ def test_attention_cuts_match_the_uniform_comparison():
 
 
 # ---------------------------------------------------------------- exact agreement
-def dyadic_model(sigma2=0.0, P0=None):
+def dyadic_model(sigma2=0.0, P0=None, n_attributes=2):
     """A model whose arithmetic is exact in floating point (entries are multiples of 1/4)."""
     S = [[0.5, -0.25, 0.0], [-0.25, 0.5, -0.25], [0.0, -0.25, 0.75]]
-    M = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
-    return from_matrices(M, [0.25, 0.75], S, sigma2=sigma2, P0=P0)
+    if n_attributes == 2:
+        M, w = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]], [0.25, 0.75]
+    else:
+        M, w = [[1.0, 3.0, 0.0], [3.0, 1.0, 1.0], [2.0, 2.0, 0.5]], [0.25, 0.25, 0.5]
+    return from_matrices(M, w, S, sigma2=sigma2, P0=P0)
 
 
-@pytest.mark.parametrize("P0", [None, [0.5, -0.25, 0.0]])
-def test_shortcut_equals_step_by_step_exactly_without_noise(P0):
+@pytest.mark.parametrize(
+    "P0, n_attributes", [(None, 2), ([0.5, -0.25, 0.0], 2), (None, 3)], ids=str
+)
+def test_shortcut_equals_step_by_step_exactly_without_noise(P0, n_attributes):
     """The fixed-time shortcut is an identity: same attention draws, same choices."""
-    model = dyadic_model(P0=P0)
+    model = dyadic_model(P0=P0, n_attributes=n_attributes)
     n_steps, n_trials = 10, 3000
     S, C = model.S, model.C
     CM = C @ model.M
