@@ -569,6 +569,20 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     """
     n_states = _as_positive_int("n_states", n_states)
     n_actions = _as_positive_int("n_actions", n_actions)
+    if _is_flat_set(trajectories) and hasattr(trajectories, "states") and hasattr(trajectories, "actions"):
+        s = np.asarray(trajectories.states)
+        a = np.asarray(trajectories.actions)
+        if len(trajectories) == 0 or s.size == 0:
+            raise ValueError("trajectories must hold at least one trajectory (got an empty set)")
+        if s.shape != a.shape or s.ndim != 1:
+            raise ValueError(f"a flat set needs one state per action (got {s.shape} states, {a.shape} actions)")
+        if s.min() < 0 or s.max() >= n_states:
+            raise ValueError(f"trajectories have a state outside [0, {n_states}) (got {int(s.max())})")
+        if a.min() < 0 or a.max() >= n_actions:
+            raise ValueError(f"trajectories have an action outside [0, {n_actions}) (got {int(a.max())})")
+        counts = np.zeros((n_states, n_actions), dtype=np.int64)
+        np.add.at(counts, (s.astype(np.intp), a.astype(np.intp)), 1)
+        return counts
     if _is_flat_set(trajectories):
         trajectories = _as_sequences(trajectories)
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 2 and trajectories.shape[1] == 2:

@@ -305,3 +305,7 @@ def test_visitation_counts_of_a_demonstrations_set():
         visitation_counts(list(zip(states, actions)), n_states=3, n_actions=2),
     )
     assert visitation_kl_divergence(demos, demos, n_states=3, n_actions=2) == 0.0
+    with pytest.raises(ValueError, match="state outside"):
+        visitation_counts(demos, n_states=2, n_actions=2)
+    with pytest.raises(ValueError, match="action outside"):
+        visitation_counts(demos, n_states=3, n_actions=1)
