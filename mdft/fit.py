@@ -972,7 +972,6 @@ def fit(
 
 def _standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3):
     """Covariance and standard errors from the numerical Hessian (in natural units)."""
-    k = layout.size
     labels = layout.labels
     m = len(labels)
     cov = np.full((m, m), np.nan)
@@ -1005,45 +1004,71 @@ def _standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3):
 
     interior = (u > bound_tol) & (u < 1.0 - bound_tol)
     reasons = {}
+    # Which free coordinates each labelled natural value depends on.
+    depends = []
     pos = 0
     for name, size in layout.blocks:
-        if not np.all(interior[pos:pos + size]):
-            reasons[name] = "estimate on (or next to) a bound of its range"
+        if name == "w":
+            depends += [np.arange(pos, pos + size)] * layout.J
+        else:
+            depends += [np.array([pos + i]) for i in range(size)]
         pos += size
+    bad = ~interior
     idx = np.flatnonzero(interior)
     if idx.size:
         H = _hessian(negloglik, u, idx, step)
+        # A coordinate that does not move the likelihood at all is not identified.
+        d = np.diag(H)
+        flat = d <= 1e-10 * max(float(np.max(np.abs(d))), 1e-300)
+        for c in np.flatnonzero(flat):
+            bad[idx[c]] = True
+            reasons.setdefault(_block_of(layout, idx[c]),
+                               "Hessian not positive definite: parameter not identified here")
+        keep = ~flat
+        idx, H = idx[keep], H[np.ix_(keep, keep)]
+    cov_u = None
+    if idx.size:
         try:
             np.linalg.cholesky(H)
             cov_u = np.linalg.inv(H)
         except np.linalg.LinAlgError:
-            cov_u = None
-        if cov_u is None:
-            for name, _ in layout.blocks:
-                reasons.setdefault(
-                    name, "Hessian not positive definite: parameter not identified here")
-        else:
-            # Delta method: natural values as a function of the free interior coordinates.
-            Jac = np.zeros((m, idx.size))
-            for c, i in enumerate(idx):
-                h = 1e-6
-                up, dn = u.copy(), u.copy()
-                up[i] += h
-                dn[i] -= h
-                Jac[:, c] = (layout.natural(up) - layout.natural(dn)) / (2 * h)
-            full = Jac @ cov_u @ Jac.T
-            # Blocks with a coordinate on a bound keep NaN.
-            ok = np.ones(m, dtype=bool)
-            pos_nat = 0
-            for name, _ in layout.blocks:
-                size = layout.J if name == "w" else (
-                    (layout.n - 1) * layout.J if name == "M" else 1)
-                if name in reasons:
-                    ok[pos_nat:pos_nat + size] = False
-                pos_nat += size
-            cov[np.ix_(ok, ok)] = full[np.ix_(ok, ok)]
+            for c in idx:
+                bad[c] = True
+                reasons.setdefault(_block_of(layout, c),
+                                   "Hessian not positive definite: parameter not identified here")
+    for c in np.flatnonzero(~interior):
+        reasons.setdefault(_block_of(layout, c), "estimate on (or next to) a bound of its range")
+    if cov_u is not None:
+        # Delta method: natural values as a function of the free interior coordinates.
+        Jac = np.zeros((m, idx.size))
+        for c, i in enumerate(idx):
+            h = 1e-6
+            up, dn = u.copy(), u.copy()
+            up[i] += h
+            dn[i] -= h
+            Jac[:, c] = (layout.natural(up) - layout.natural(dn)) / (2 * h)
+        full = Jac @ cov_u @ Jac.T
+        ok = np.array([not np.any(bad[dep]) for dep in depends])
+        cov[np.ix_(ok, ok)] = full[np.ix_(ok, ok)]
+        # A block some of whose values are defined keeps a note only for the undefined ones.
+        for name in list(reasons):
+            if name == "M":
+                pos_nat = sum(layout.J if b == "w" else sz for b, sz in layout.blocks
+                              if PARAMETERS.index(b) < PARAMETERS.index("M"))
+                n_undef = int(np.count_nonzero(~ok[pos_nat:]))
+                reasons["M"] = f"{n_undef} entries undefined: " + reasons["M"]
     fill(reasons)
     return cov, ses, notes
+
+
+def _block_of(layout, coordinate):
+    """Name of the parameter block a free coordinate belongs to."""
+    pos = 0
+    for name, size in layout.blocks:
+        if coordinate < pos + size:
+            return name
+        pos += size
+    raise IndexError(coordinate)
 
 
 def _hessian(f, u, idx, step):

@@ -181,7 +181,9 @@ def test_unidentified_parameter_has_no_standard_error():
               fixed=dict(phi2=0.0, beta=5.0, sigma2=1.0), start=dict(phi1=0.3),
               n_starts=1, rng=0)
     assert np.isnan(res.standard_errors["phi1"])
-    assert res.se_notes["phi1"] != ""
+    assert "not identified" in res.se_notes["phi1"]
+    # w is still identified and keeps its standard error.
+    assert np.all(np.isfinite(res.standard_errors["w"])) and res.se_notes["w"] == ""
 
 
 def test_predict_and_result_is_frozen():
