@@ -5,6 +5,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from irl.gridworld import GridWorld
 from irl.scobee import HardConstraintResult, _Transitions, infer_hard_constraints
@@ -268,3 +270,36 @@ def test_policy_of_the_inferred_model_avoids_the_constraints():
         res.policy(world)
     with pytest.raises(ValueError, match="features the constraints were inferred on"):
         res.policy(GridWorld(4, 0, 3, p_slip=0.0).nominal_mdp)
+
+
+@settings(deadline=None, max_examples=15)
+@given(
+    size=st.integers(3, 4),
+    seed=st.integers(0, 10_000),
+    n_demos=st.integers(1, 8),
+)
+def test_properties_on_random_worlds(size, seed, n_demos):
+    from irl.demonstrations import generate_demonstrations
+
+    rng = np.random.default_rng(seed)
+    n = size * size
+    start, goal = 0, n - 1
+    blocked = (int(rng.integers(1, n - 1)),)
+    world = GridWorld(size, start, goal, constrained_states=blocked, p_slip=0.0)
+    demos = generate_demonstrations(world.constrained_mdp, n_demos, rng=seed)
+    res = infer_hard_constraints(world.nominal_mdp, demos, min_kl_decrease=0.0)
+    # Never a constraint that a demonstration has.
+    feats = world.features
+    seen = np.zeros(world.n_features, bool)
+    for i in range(len(demos)):
+        s, a = demos.trajectory(i)
+        seen |= feats.destination.toarray()[s[0]] != 0
+        for t in range(len(a)):
+            seen |= feats.phi(s[t], a[t], s[t + 1]) != 0
+    assert not np.any(seen[res.constraints])
+    # Masses are probabilities; each step lowers the KL by -log(1 - A); the KL stays >= 0.
+    assert np.all((res.eliminated_mass > 0) & (res.eliminated_mass <= 1))
+    kls = np.concatenate([[res.kl_initial], res.kl])
+    np.testing.assert_allclose(-np.diff(kls), -np.log1p(-res.eliminated_mass), rtol=1e-6, atol=1e-9)
+    assert np.all(kls >= -1e-9)
+    np.testing.assert_array_equal(np.flatnonzero(res.mask), np.sort(res.constraints))
