@@ -3,7 +3,7 @@
 FrozenLake, CliffWalking and Taxi (and any environment built the same way)
 expose their dynamics as ``env.unwrapped.P``: ``P[s][a]`` is a list of
 ``(probability, next_state, reward, terminated)`` tuples. This module reads that
-table into the padded sparse arrays of :class:`irl.mdp.TabularMDP`.
+table into the padded sparse arrays of :class:`irl.mdp.MDP`.
 
 Gymnasium is an optional dependency (``pip install "pymdft[gym]"``); it is
 imported only by :func:`make_env`. :func:`from_gymnasium` itself works on any
