@@ -42,9 +42,12 @@ def main(argv=None):
     ap.add_argument("--n-demos", type=int, default=200)
     ap.add_argument("--min-distance", type=float, default=50.0)
     ap.add_argument("--p-slip", type=float, default=0.1)
-    ap.add_argument("--horizon", type=int, default=None, help="default: twice the longest demonstration")
+    ap.add_argument("--horizon", type=int, default=None, help="default: 1.5 times the longest demonstration")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-precondition", action="store_true", help="run L-BFGS-B on the raw penalties")
+    ap.add_argument("--tol", type=float, default=None,
+                    help="projected-gradient tolerance; default 1 / n_demos, one expected visit over the data set")
+    ap.add_argument("--max-iter", type=int, default=1000)
     args = ap.parse_args(argv)
 
     # compile the kernels on a small world first, so the timings below exclude compilation
@@ -66,12 +69,24 @@ def main(argv=None):
     rss_before = peak_rss_mb()
 
     t0, c0 = time.perf_counter(), time.process_time()
-    res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=not args.no_precondition)
+    tol = 1.0 / args.n_demos if args.tol is None else args.tol
+    res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=not args.no_precondition, tol=tol,
+                   max_iter=args.max_iter)
     t_fit, c_fit = time.perf_counter() - t0, time.process_time() - c0
     rss_after = peak_rss_mb()
 
     truth = world.constraint_mask
     found = res.zeta >= 0.6
+    # constraints the demonstrations can reveal: features within one move of a demonstrated cell
+    near = np.zeros(world.n_states, dtype=bool)
+    for s in np.unique(np.concatenate([demos.states, demos.next_states])):
+        x, y = world.coords(s)
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                if 0 <= x + dx < args.size and 0 <= y + dy < args.size:
+                    near[world.state(x + dx, y + dy)] = True
+    near_feature = np.ones(world.n_features, dtype=bool)
+    near_feature[world.feature_slices["state"]] = near
     print(f"world: {args.size} x {args.size} = {world.n_states} states, {world.n_actions} actions, "
           f"{world.n_features} features, K = {nominal.n_successors} successors, slip {args.p_slip}")
     print(f"       {n_special} blue, {n_special} green, {n_special} constrained cells, actions "
@@ -81,11 +96,14 @@ def main(argv=None):
           f"max {demos.lengths.max()})")
     print(f"MESC-IRL fit              {t_fit:8.2f} s  (horizon {res.horizon}, {res.n_iter} iterations, "
           f"{res.n_evaluations} evaluations, {t_fit / max(res.n_evaluations, 1) * 1e3:.0f} ms each, "
-          f"converged {res.converged}, preconditioned {not args.no_precondition})")
+          f"converged {res.converged} at tol {tol:g}, preconditioned {not args.no_precondition})")
     print(f"MESC-IRL fit, CPU time    {c_fit:8.2f} s  (the wall time on an otherwise idle core)")
     print(f"log-likelihood per demonstration {res.objective:.3f}")
     print(f"true constraints with zeta >= 0.6: {int((found & truth).sum())} of {int(truth.sum())}; "
           f"other features with zeta >= 0.6: {int((found & ~truth).sum())}")
+    print(f"  of which within one move of a demonstrated cell (or action/colour features): "
+          f"{int((found & truth & near_feature).sum())} of {int((truth & near_feature).sum())} found, "
+          f"{int((found & ~truth & near_feature).sum())} others")
     print(f"peak RSS before fit {rss_before:7.0f} MB, after fit {rss_after:7.0f} MB")
     print(f"load average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 

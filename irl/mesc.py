@@ -86,8 +86,8 @@ class MESCObjective:
     demonstrations : Demonstrations
         Checked against ``nominal`` (states, actions, feasible transitions).
     horizon : int, optional
-        H of the backward and forward passes; default twice the longest
-        demonstration. Transitions at steps t >= H do not count.
+        H of the backward and forward passes; default one and a half times
+        the longest demonstration, rounded up. Transitions at steps t >= H do not count.
 
     Notes
     -----
@@ -116,7 +116,8 @@ class MESCObjective:
             raise TypeError(f"demonstrations must be an irl.Demonstrations (got {type(demonstrations).__name__})")
         slots = demonstrations.check(nominal)
         if horizon is None:
-            horizon = 2 * int(demonstrations.lengths.max())
+            longest = int(demonstrations.lengths.max())
+            horizon = longest + (longest + 1) // 2
         self.horizon = H = _as_int("horizon", horizon)
         self.nominal = nominal
         self.features = nominal.features
@@ -383,8 +384,8 @@ def mesc_irl(
     demonstrations : Demonstrations
         Trajectories in the (unknown) constrained MDP; checked against ``nominal``.
     horizon : int, optional
-        Horizon H of the backward and forward passes (default: twice the
-        longest demonstration).
+        Horizon H of the backward and forward passes (default: one and a
+        half times the longest demonstration, rounded up).
     init : array_like of shape (n_features,) or MESCResult, optional
         Warm start, e.g. penalties learned on another world with the same
         feature layout (transfer). Default zeros.
