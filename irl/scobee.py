@@ -57,6 +57,9 @@ _HARD_PENALTY = 1.0e4
 
 _DETERMINISTIC_TOL = 1e-12
 
+_MAX_ACCRUAL_CELLS = 50_000_000
+"""Largest (transitions x candidates) array the accrual pass may hold (400 MB of float64)."""
+
 
 # --------------------------------------------------------------------------- input
 
@@ -170,7 +173,7 @@ class _Transitions:
     """The live transitions of a deterministic MDP and the features each one has."""
 
     def __init__(self, mdp):
-        S, A, K = mdp.probs.shape
+        S = mdp.n_states
         feats = mdp.features
         s_idx, a_idx, k_idx = np.nonzero((mdp.probs > 0) & ~mdp.terminal[:, None, None])
         self.src = s_idx
@@ -178,18 +181,27 @@ class _Transitions:
         self.dst = mdp.next_states[s_idx, a_idx, k_idx]
         self.prob = mdp.probs[s_idx, a_idx, k_idx]
         phi = feats.source[self.src] + feats.action[self.act] + feats.destination[self.dst]
-        self.has = (sp.csr_array(phi) != 0).toarray()  # (E, F) bool
-        self.start_has = (feats.destination != 0).toarray()  # (S, F): occupying s at t = 0
+        self.has = sp.csr_array(sp.csr_array(phi) != 0, dtype=np.float64)  # (E, F), 1 where c is on
+        self.start_has = sp.csr_array(feats.destination != 0, dtype=np.float64)  # (S, F): occupying s
         n_e = self.src.size
+        self.index = {(int(a), int(b), int(c)): e for e, (a, b, c) in enumerate(zip(self.src, self.act, self.dst))}
         self.scatter = sp.csr_array((np.ones(n_e), (self.dst, np.arange(n_e))), shape=(S, n_e))
         self.terminal = mdp.terminal
+        self.n_features = phi.shape[1]
 
-    def accrual(self, policy, start):
-        """A[c] = P(a trajectory violates c) under the time-indexed ``policy`` (Algorithm 1)."""
-        has = self.has.astype(np.float64)
+    def accrual(self, policy, start, columns=None):
+        """A[c] = P(a trajectory violates c) under the time-indexed ``policy`` (Algorithm 1).
+
+        Only the features in ``columns`` (default all) are tracked; the others are 0.
+        """
+        cols = np.arange(self.n_features) if columns is None else np.asarray(columns, dtype=np.int64)
+        out = np.zeros(self.n_features)
+        if cols.size == 0:
+            return out
+        has = self.has[:, cols].toarray()
         d = start.copy()
-        acc = start[:, None] * self.start_has
-        done = np.zeros(has.shape[1])
+        acc = start[:, None] * self.start_has[:, cols].toarray()
+        done = np.zeros(cols.size)
         for t in range(policy.shape[0]):
             w = policy[t, self.src, self.act] * self.prob  # P(a, s' | s) for each live transition
             acc_src = acc[self.src]
@@ -201,26 +213,28 @@ class _Transitions:
                 done += acc[self.terminal].sum(axis=0)
                 acc[self.terminal] = 0.0
                 d[self.terminal] = 0.0
-        return np.clip(done + acc.sum(axis=0), 0.0, 1.0)
+        out[cols] = np.clip(done + acc.sum(axis=0), 0.0, 1.0)
+        return out
 
-
-def _violated(trajs, mdp, trans_has_lookup):
-    """Features that some demonstration has (on a transition, or by occupying its first state)."""
-    feats = mdp.features
-    hit = np.zeros(mdp.n_features, dtype=bool)
-    for s, a in trajs:
-        hit |= np.asarray((feats.destination[[int(s[0])]] != 0).toarray()[0])
-        n = a.size
-        for t in range(n):
-            key = (int(s[t]), int(a[t]), int(s[t + 1]))
-            row = trans_has_lookup.get(key)
-            if row is None:
-                raise ValueError(
-                    f"a demonstration takes action {key[1]} in state {key[0]} to state {key[2]}, "
-                    "a transition the MDP does not allow"
-                )
-            hit |= row
-    return hit
+    def violated(self, trajs):
+        """Features that some demonstration has (on a transition, or by occupying its first state)."""
+        rows = []
+        for s, a in trajs:
+            for t in range(a.size):
+                key = (int(s[t]), int(a[t]), int(s[t + 1]))
+                e = self.index.get(key)
+                if e is None:
+                    raise ValueError(
+                        f"a demonstration takes action {key[1]} in state {key[0]} to state {key[2]}, "
+                        "a transition the MDP does not allow"
+                    )
+                rows.append(e)
+        hit = np.zeros(self.n_features, dtype=bool)
+        if rows:
+            hit |= np.asarray(self.has[np.unique(rows)].sum(axis=0)).ravel() > 0
+        starts = np.unique([int(s[0]) for s, _ in trajs])
+        hit |= np.asarray(self.start_has[starts].sum(axis=0)).ravel() > 0
+        return hit
 
 
 def _log_likelihoods(trajs, mdp, log_policy):
@@ -456,10 +470,14 @@ def infer_hard_constraints(
 
     base = mdp.replace(discount=1.0)
     trans = _Transitions(base)
-    lookup = {
-        (int(s), int(a), int(d)): trans.has[e] for e, (s, a, d) in enumerate(zip(trans.src, trans.act, trans.dst))
-    }
-    admissible = cand & ~_violated(trajs, base, lookup)
+    admissible = cand & ~trans.violated(trajs)
+    cells = trans.src.size * int(admissible.sum())
+    if cells > _MAX_ACCRUAL_CELLS:
+        raise ValueError(
+            f"the accrual pass would track {int(admissible.sum())} candidate features over "
+            f"{trans.src.size} transitions ({8 * cells / 1e9:.1f} GB per step); "
+            "pass candidates= to restrict the search"
+        )
     entropy = _empirical_entropy(trajs)
     names = base.features.names
 
@@ -490,7 +508,7 @@ def infer_hard_constraints(
             stop = "max_constraints"
             break
         n_iter += 1
-        mass = trans.accrual(policy, base.start)
+        mass = trans.accrual(policy, base.start, np.flatnonzero(admissible))
         score = np.where(admissible, mass, -np.inf)
         best = int(np.argmax(score))
         a_best = float(mass[best])

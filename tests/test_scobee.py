@@ -303,3 +303,16 @@ def test_properties_on_random_worlds(size, seed, n_demos):
     np.testing.assert_allclose(-np.diff(kls), -np.log1p(-res.eliminated_mass), rtol=1e-6, atol=1e-9)
     assert np.all(kls >= -1e-9)
     np.testing.assert_array_equal(np.flatnonzero(res.mask), np.sort(res.constraints))
+
+
+def test_large_candidate_sets_are_refused_before_any_work(monkeypatch):
+    import irl.scobee as scobee
+
+    world = small_world()
+    demos = [([0, 3, 4, 5, 2], [2, 1, 1, 3])]
+    monkeypatch.setattr(scobee, "_MAX_ACCRUAL_CELLS", 150)
+    with pytest.raises(ValueError, match="pass candidates= to restrict the search"):
+        infer_hard_constraints(world.nominal_mdp, demos)
+    # Restricting the candidates to the actions brings it under the limit.
+    res = infer_hard_constraints(world.nominal_mdp, demos, candidates=[9 + 4, 9 + 5])
+    assert set(res.constraints.tolist()) <= {13, 14}
