@@ -207,7 +207,7 @@ def save_mdp(mdp, path):
 
 
 def load_mdp(path):
-    """Read an MDP written by :func:`save_mdp`."""
+    """Read an MDP written by :func:`save_mdp` (example there); no pickle is involved."""
     with np.load(path, allow_pickle=False) as z:
         feats = None
         if "feature_sizes" in z:
@@ -226,7 +226,17 @@ def load_mdp(path):
 
 # ------------------------------------------------------------ demonstrations
 def save_demonstrations(demonstrations, path):
-    """Write demonstrations to JSON in the paper's format (``state_seq``, ``action_seq``)."""
+    """Write demonstrations to JSON in the paper's format (``state_seq``, ``action_seq``).
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = Demonstrations.from_sequences([[0, 1, 2]], [[1, 1]])
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     save_demonstrations(d, os.path.join(tmp, "d.json"))
+    ...     load_demonstrations(os.path.join(tmp, "d.json")).trajectory(0)
+    ([0, 1, 2], [1, 1])
+    """
     if not isinstance(demonstrations, Demonstrations):
         raise TypeError(f"demonstrations must be an irl.Demonstrations (got {type(demonstrations).__name__})")
     doc = demonstrations.to_dict()
@@ -236,7 +246,7 @@ def save_demonstrations(demonstrations, path):
 
 
 def load_demonstrations(path):
-    """Read demonstrations written by :func:`save_demonstrations`."""
+    """Read demonstrations written by :func:`save_demonstrations` (example there)."""
     doc = _read_json(path, "demonstrations")
     d = Demonstrations.from_sequences(doc["state_seq"], doc["action_seq"])
     if "reached_terminal" in doc:

@@ -71,6 +71,12 @@ def feasible_reward_sd(mdp):
 
     The set is every padded transition ``(s, a, k)`` with ``s`` non-terminal and
     ``probs[s, a, k] > 0``, each counted once (unweighted).
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> round(feasible_reward_sd(GridWorld(3, 0, 8, p_slip=0.0).nominal_mdp), 3)
+    2.762
     """
     mask = (mdp.probs > 0) & ~mdp.terminal[:, None, None]
     return float(np.std(mdp.rewards[mask]))
@@ -202,7 +208,13 @@ class MESCObjective:
 
 @dataclass(frozen=True)
 class LearnedConstraint:
-    """One learned constraint: feature index and name, penalty and zeta."""
+    """One learned constraint: feature index and name, penalty and zeta.
+
+    Examples
+    --------
+    >>> LearnedConstraint(31, "state 31", 48.0, 0.9).name
+    'state 31'
+    """
 
     feature: int
     name: str
@@ -236,6 +248,18 @@ class MESCResult:
     converged : bool
     message : str
         The optimiser's message.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> world = GridWorld(4, 0, 15, constrained_states=[5], constrained_actions=["left"])
+    >>> res = MESCResult.from_penalties(world.nominal_mdp, world.true_penalties)
+    >>> [c.name for c in res.ranked_constraints(min_zeta=0.6)]
+    ['state 5', 'action left']
+    >>> res.feature_zeta(world.feature_slices["colour"]).round(3).tolist()
+    [0.269, 0.269, 0.269]
+    >>> res.transition_zeta().shape
+    (16, 8, 8)
     """
 
     penalties: np.ndarray

@@ -241,7 +241,14 @@ def soft_value_iteration(mdp, *, horizon=None, max_iter=10_000, tol=1e-8):
 
 
 def check_policy(mdp, policy, name="policy"):
-    """Return ``policy`` as a float array (S, A) or (H, S, A), rows distributions, or raise."""
+    """Return ``policy`` as a new float array (S, A) or (H, S, A) whose rows are distributions, or raise.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> check_policy(GridWorld(2, 0, 3).nominal_mdp, [[0.125] * 8] * 4).shape
+    (4, 8)
+    """
     pol = _as_float(name, policy)
     S, A = mdp.n_states, mdp.n_actions
     if pol.ndim not in (2, 3) or pol.shape[-2:] != (S, A):
