@@ -161,7 +161,7 @@ def absorption(muP, s_next, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
 
 @njit
 def window(mean, sd, width, n_cells, edges):
-    """First and last cell (inclusive) that hold the mass of ``N(mean, sd^2)`` within ``width`` sd."""
+    """First and last cell (inclusive) within ``width`` sd of ``mean``."""
     h = edges[1] - edges[0]
     lo = int(math.floor((mean - width * sd - edges[0]) / h))
     hi = int(math.floor((mean + width * sd - edges[0]) / h))
@@ -361,7 +361,10 @@ def count_rows(states, S, E, CM, A, w, theta, edges1, edges2, top, levels, index
 def fill_rows(states, indptr, S, E, CM, A, w, theta, edges1, edges2, top, levels, index,
               sd_opt, sd_cell, pair_sd, pair_rho, width, gl_x, gl_w, n_chunks, cols, vals,
               absorbing):
-    """Write the rows of ``Q`` (CSR ``indptr``/``cols``/``vals``) and of ``R`` (dense, n_states x n)."""
+    """Write the rows of ``Q`` (CSR ``indptr``, ``cols``, ``vals``) and of ``R``.
+
+    ``absorbing`` is dense, (n_states, n_options).
+    """
     n_states = states.shape[0]
     n1 = edges1.shape[0] - 1
     n2 = edges2.shape[0] - 1

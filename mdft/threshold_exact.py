@@ -294,6 +294,11 @@ def _sum_bounds(S, theta, s0):
     def images(s):
         return [theta * (total - ck) + ck * (s - (n - 1) * theta) for ck in c]
 
+    if np.all((c >= 0.0) & (c < 1.0)):
+        # increasing contractions b_k + c_k s: the interval's ends are their fixed points
+        fixed = [(theta * (total - ck) - ck * (n - 1) * theta) / (1.0 - ck) for ck in c]
+        return min(float(s0), min(fixed)), min(max(float(s0), max(fixed)), n * theta)
+
     lo = hi = float(s0)
     limit = 1e3 * theta + abs(s0)
     for _ in range(100_000):
@@ -468,7 +473,8 @@ def _propagate(chain, n, theta, max_steps, n_cells, tol, tail_tol):
         probabilities=probs, p_undecided=p_undecided, rt_pmf=rt_pmf,
         mean_response_times=mean_rt, theta=theta, max_steps=max_steps, n_cells=n_cells,
         spacing=chain.spacing, n_levels=chain.n_levels, n_states=n_states, method="propagate",
-        n_iter=steps, converged=True, tail_start=int(tail_start) if tail_start < max_steps else None,
+        n_iter=steps, converged=True,
+        tail_start=int(tail_start) if tail_start < max_steps else None,
     )
 
 
