@@ -343,7 +343,10 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
     counts = np.zeros(n, dtype=np.int64)
     if n_trajectories:
         counts += np.bincount(rec_choices[rec_choices >= 0], minlength=n)
-    shortcut = None if threshold else _fixed_time_shortcut(S, CM, C, P0, model.sigma2, n_steps)
+    shortcut = None
+    if not threshold:
+        _check_growth(model.spectral_radius, n_steps)
+        shortcut = _fixed_time_shortcut(S, CM, C, P0, model.sigma2, n_steps)
     if shortcut is not None:
         method = "shortcut"
         blocks, block_size, base, L = shortcut
@@ -547,8 +550,8 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
     (:func:`mdft._kernels.block_table`), ``base = S^T P0`` and ``L`` (n, r)
     satisfies ``L L^T = sigma2 sum_{k<T} S^k C C^T S^kT``; with fewer than 4
     options the three are padded with zeros to width 4. Returns None when
-    the table would be too large or when something overflows (then the
-    step-by-step kernel runs instead).
+    the table would be too large (then the step-by-step kernel runs instead);
+    raises ``ValueError`` when the components of ``P(T)`` overflow.
     """
     n, J = CM.shape
     if n_steps * J * n > _MAX_TABLE_SIZE:
@@ -559,13 +562,15 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
         if np.any(P0 != 0):
             base = np.linalg.matrix_power(S, n_steps) @ P0
         L = _noise_factor(S, C, sigma2, n_steps)
-    if not (np.isfinite(table).all() and np.isfinite(base).all() and np.isfinite(L).all()):
-        return None
     block_size = _block_size(n_steps, J, n)
     with np.errstate(over="ignore", invalid="ignore"):
         blocks = _kernels.block_table(table, block_size)
-    if not np.isfinite(blocks).all():
-        return None
+    if not (np.isfinite(blocks).all() and np.isfinite(base).all() and np.isfinite(L).all()):
+        raise ValueError(
+            f"preferences overflow over n_steps={n_steps} steps (the feedback matrix S has "
+            f"spectral radius {np.max(np.abs(np.linalg.eigvals(S))):.6g}); lower n_steps or "
+            "phi2, or raise phi1"
+        )
     if n < 4:
         # Pad to width 4: the kernel then adds rows with straight-line code.
         pad = 4 - n
@@ -573,6 +578,21 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
         base = np.pad(base, (0, pad))
         L = np.pad(L, ((0, pad), (0, 0)))
     return blocks, block_size, np.ascontiguousarray(base), np.ascontiguousarray(L)
+
+
+def _check_growth(spectral_radius: float, n_steps: int) -> None:
+    """Refuse a deliberation over which ``rho(S)^n_steps`` leaves floating point.
+
+    With ``rho(S) > 1`` preferences grow like ``rho^t``; past about 1e300 they
+    overflow and the choice ``argmax P(T)`` would be meaningless.
+    """
+    if spectral_radius > 1.0 and n_steps * math.log(spectral_radius) > 690.0:
+        raise ValueError(
+            f"preferences overflow over n_steps={n_steps} steps: the feedback matrix S has "
+            f"spectral radius {spectral_radius:.6g} > 1, so they grow like "
+            f"{spectral_radius:.6g}**{n_steps} (about 1e{n_steps * math.log10(spectral_radius):.0f})"
+            "; lower n_steps or phi2, or raise phi1"
+        )
 
 
 def _block_size(n_steps: int, n_attributes: int, n_options: int) -> int:
