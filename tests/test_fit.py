@@ -194,6 +194,8 @@ def test_predict_and_result_is_frozen():
     truth = probabilities(M5, [[0, 1, 2], [3, 4]], TRUTH, T)
     for a, b in zip(pred, truth):
         np.testing.assert_allclose(a, b, atol=0.02)
+    with pytest.raises(ValueError, match="refers to option 9"):
+        res.predict([[0, 9]])
     with pytest.raises(AttributeError):
         res.mse = 0.0
     assert isinstance(res.model, mdft.MDFTModel)
