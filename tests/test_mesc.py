@@ -5,9 +5,13 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from irl import (
+    MDP,
     Demonstrations,
+    TransitionFeatures,
     GridWorld,
     MESCObjective,
     MESCResult,
@@ -290,3 +294,31 @@ def test_bad_mesc_input():
         MESCObjective(world.nominal_mdp, demos)(np.zeros(26))
     with pytest.raises(ValueError, match="penalties must be non-negative"):
         MESCResult.from_penalties(world.nominal_mdp, -np.ones(27))
+
+
+@settings(deadline=None, max_examples=10)
+@given(seed=st.integers(0, 10_000), discount=st.sampled_from([1.0, 0.8]))
+def test_gradient_on_random_mdps_with_dense_features(seed, discount):
+    # generic MDPs: successors differ between actions, features on all three blocks
+    rng = np.random.default_rng(seed)
+    S, A, F = 5, 3, 4
+    P = rng.random((S, A, S)) * (rng.random((S, A, S)) < 0.5)
+    P[:, :, S - 1] += 0.1
+    P /= P.sum(axis=2, keepdims=True)
+    feats = TransitionFeatures(rng.random((S, F)), rng.random((A, F)), rng.random((S, F)))
+    term = np.zeros(S, dtype=bool)
+    term[S - 1] = True
+    start = np.zeros(S)
+    start[0] = 1.0
+    mdp = MDP.from_dense(P, rng.normal(size=(S, A, S)), terminal=term, start=start, discount=discount,
+                         features=feats)
+    pol = np.full((S, A), 1.0 / A)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # some trajectories are cut at max_steps
+        demos = sample_trajectories(mdp, pol, 6, rng=seed, max_steps=8)
+    obj = MESCObjective(mdp, demos, horizon=7)
+    w = rng.uniform(0.0, 2.0, F)
+    _, grad = obj(w)
+    eps = 1e-6
+    fd = np.array([(obj(w + eps * e)[0] - obj(w - eps * e)[0]) / (2 * eps) for e in np.eye(F)])
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
