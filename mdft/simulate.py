@@ -162,6 +162,18 @@ class SimulationResult:
         decision are NaN.
     trajectory_choices : ndarray of int, shape (n_trajectories,), or None
         The options chosen in the recorded trials (``-1``: undecided).
+
+    Examples
+    --------
+    >>> import mdft
+    >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+    ...                        phi1=0.022, phi2=0.05, beta=12.0)
+    >>> res = mdft.simulate(model, 1000, stopping=mdft.Threshold(30.0, max_steps=50),
+    ...                     rng=0, n_trajectories=2)
+    >>> int(res.counts.sum() + res.n_undecided)
+    1000
+    >>> res.trajectories.shape[0], res.trajectories.shape[2]
+    (2, 2)
     """
 
     probabilities: np.ndarray
@@ -180,6 +192,7 @@ class SimulationResult:
 
     @property
     def n_options(self) -> int:
+        """Number of options of the simulated model."""
         return self.counts.shape[0]
 
     def response_times(self, option: int) -> np.ndarray:
