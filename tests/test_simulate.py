@@ -327,7 +327,7 @@ def test_same_result_with_one_and_two_threads(compromise):
     def run():
         fixed = mdft.simulate(compromise, 20_000, stopping=mdft.FixedTime(100), rng=3)
         thr = mdft.simulate(compromise, 3000, stopping=mdft.Threshold(10.0, 1000), rng=3)
-        M = np.random.default_rng(0).random((1000, 8, 2))
+        M = np.random.default_rng(0).random((3000, 8, 2))
         dec = mdft.decide(M, [0.5, 0.5], phi1=0.01, phi2=0.01, beta=2.0, n_steps=100, rng=3)
         return fixed.counts, thr.choices, thr.decision_steps, dec
 
@@ -340,6 +340,21 @@ def test_same_result_with_one_and_two_threads(compromise):
     finally:
         numba.set_num_threads(before)
     for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("stopping", [mdft.FixedTime(30), mdft.Threshold(6.0, 200)], ids=repr)
+def test_serial_and_parallel_runs_agree(compromise, stopping, monkeypatch):
+    """Small jobs run the chunks serially, large ones in parallel: same chunks, same result."""
+    module = sys.modules["mdft.simulate"]
+    M = np.random.default_rng(1).random((300, 5, 2))
+    results = []
+    for work in (0, 10**12):  # everything in parallel, then everything serial
+        monkeypatch.setattr(module, "_PARALLEL_WORK", work)
+        res = mdft.simulate(compromise, 3000, stopping=stopping, rng=9, n_trajectories=2)
+        dec = mdft.decide(M, [0.4, 0.6], phi1=0.01, phi2=0.01, beta=2.0, n_steps=20, rng=9)
+        results.append((res.counts, res.choices, res.trajectories, dec))
+    for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
 
 
