@@ -96,6 +96,16 @@ def test_paper_worlds_load(shared_data):
     assert all(len(x.constrained_states) == 6 and len(x.constrained_actions) == 2 for x in worlds)
     back = GridWorld.from_dict(w.to_dict())
     assert back.to_dict() == w.to_dict()
+    from irl import load_paper_worlds
+
+    packaged = load_paper_worlds("random_10")
+    shared = load_paper_worlds(path=shared_data / "paper" / "random_data_10.json", p_slip=0.0)
+    assert [x.to_dict() for x in packaged] == [x.to_dict() for x in shared]
+    assert shared[0].p_slip == 0.0
+    with pytest.raises(ValueError, match="name must be one of"):
+        load_paper_worlds("figure_2")
+    with pytest.raises(FileNotFoundError, match="world file not found"):
+        load_paper_worlds(path=shared_data / "missing.json")
 
 
 def test_bad_input():
