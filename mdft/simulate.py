@@ -603,8 +603,9 @@ def _check_growth(spectral_radius: float, n_steps: int) -> None:
         raise ValueError(
             f"preferences overflow over n_steps={n_steps} steps: the feedback matrix S has "
             f"spectral radius {spectral_radius:.6g} > 1, so they grow like "
-            f"{spectral_radius:.6g}**{n_steps} (about 1e{n_steps * math.log10(spectral_radius):.0f})"
-            "; lower n_steps or phi2, or raise phi1"
+            f"{spectral_radius:.6g}**{n_steps} "
+            f"(about 1e{n_steps * math.log10(spectral_radius):.0f}); lower n_steps or phi2, "
+            "or raise phi1"
         )
 
 
