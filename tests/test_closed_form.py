@@ -77,7 +77,7 @@ def orthant_reference(mean, cov):
             out.append(st.norm.sf(0.0, loc=(L @ mean)[0], scale=np.sqrt((L @ cov @ L.T)[0, 0])))
         else:
             out.append(st.multivariate_normal.cdf(
-                np.zeros(n - 1), mean=-(L @ mean), cov=L @ cov @ L.T, abseps=1e-7, releps=1e-7,
+                np.zeros(n - 1), mean=-(L @ mean), cov=L @ cov @ L.T, abseps=1e-6, releps=1e-6,
                 rng=0))
     return np.array(out)
 
