@@ -4,6 +4,8 @@ Monte Carlo comparisons use tolerances of 3 standard errors of the difference.
 The reference is the slow step-by-step NumPy code in tests/reference_numpy.py.
 """
 
+import contextlib
+import io
 import json
 import math
 import os
@@ -380,9 +382,6 @@ def test_compiled_and_pure_python_agree():
                          capture_output=True, text=True, timeout=300, check=True)
     nojit = json.loads(out.stdout)
     namespace = {}
-    import contextlib
-    import io
-
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):
         exec(_NOJIT_SCRIPT, namespace)
