@@ -394,6 +394,7 @@ def mesc_irl(
     max_iter=1000,
     tol=1e-3,
     precondition=False,
+    maxcor=10,
 ):
     """Learn soft constraints from demonstrations (MESC-IRL).
 
@@ -423,6 +424,8 @@ def mesc_irl(
         Stop when the largest component of the projected gradient of L with
         respect to omega is <= tol (expected feature visits per demonstration),
         or when L-BFGS-B's relative change of L falls below its ``ftol``.
+    maxcor : int
+        Number of correction pairs L-BFGS-B keeps (its memory).
     precondition : bool
         Run L-BFGS-B on ``theta = omega * sqrt(c + 0.01)``, c the expected plus
         empirical feature counts at the start point (a diagonal scaling that
@@ -454,6 +457,7 @@ def mesc_irl(
     w0 = _initial(init, F, nominal.features.names)
     l2 = _as_real("l2", l2, low=0.0)
     max_iter = _as_int("max_iter", max_iter)
+    maxcor = _as_int("maxcor", maxcor)
     tol = _as_real("tol", tol, low=0.0, low_open=True)
     if max_penalty is not None:
         max_penalty = _as_real("max_penalty", max_penalty, low=0.0, low_open=True)
@@ -500,7 +504,7 @@ def mesc_irl(
     bounds = [(0.0, None if upper is None else float(u)) for u in (upper if upper is not None else [None] * F)]
     res = minimize(
         fun, w0 / scale, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
-        options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter},
+        options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter, "maxcor": maxcor},
     )
     w = np.clip(res.x * scale, 0.0, max_penalty)
     value, grad = obj._evaluate(w)
