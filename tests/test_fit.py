@@ -5,6 +5,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hst
 
 import mdft
 from mdft import ChoiceData, fit
@@ -382,3 +384,23 @@ def test_screening_finds_the_better_optimum():
     data = ChoiceData([[0, 1, 2]], [np.round(p * 10_000).astype(int)])
     res = fit(data, M, stopping=25, params=["w"], fixed=params, n_starts=4, rng=0)
     assert abs(res.params["w"][0] - 0.7) < 0.02
+
+
+@settings(deadline=None, max_examples=10)
+@given(seed=hst.integers(0, 10_000))
+def test_property_log_likelihood_ignores_option_order(seed):
+    """Listing the options of each subset in another order changes nothing."""
+    rng = np.random.default_rng(seed)
+    subsets = [list(rng.permutation(5)[:k]) for k in (2, 3, 3)]
+    counts = [rng.integers(0, 50, size=len(s)) + 1 for s in subsets]
+    perms = [rng.permutation(len(s)) for s in subsets]
+    d1 = ChoiceData(subsets, counts)
+    d2 = ChoiceData([np.array(s)[p] for s, p in zip(subsets, perms)],
+                    [np.array(c)[p] for c, p in zip(counts, perms)], n_options=d1.n_options)
+    kw = dict(stopping=20, params=["w"], fixed=others("w"), n_starts=1, max_iter=3, rng=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        a, b = fit(d1, M5, **kw), fit(d2, M5, **kw)
+    assert abs(a.log_likelihood - b.log_likelihood) < 1e-8 * max(1.0, abs(a.log_likelihood))
+    for p, q, perm in zip(a.predicted, b.predicted, perms):
+        np.testing.assert_allclose(q, p[perm], atol=1e-6)
