@@ -316,7 +316,10 @@ def block_table(table, block_size):
 
         blocks[m, p] = sum_s table[T - 1 - t_s, j_s],
 
-    the contribution of those steps to ``P(T)``. Shape (n_blocks, J**block_size, n).
+    the contribution of those steps to ``P(T)``, summed from the block's last
+    step back to its first. Shape (n_blocks, J**block_size, n). The patterns
+    are built by prepending one step at a time, so the cost is about twice
+    the size of the result.
     """
     n_steps, J, n = table.shape
     n_blocks = (n_steps + block_size - 1) // block_size
@@ -325,15 +328,21 @@ def block_table(table, block_size):
     for m in range(n_blocks):
         first = m * block_size
         size = min(block_size, n_steps - first)
-        for p in range(J**size):
-            rest = p
-            # Digits of p from the last step of the block back to the first.
-            for s in range(size - 1, -1, -1):
-                j = rest % J
-                rest //= J
-                lag = n_steps - 1 - (first + s)
-                for i in range(n):
-                    blocks[m, p, i] += table[lag, j, i]
+        # The block's last step alone: its attribute is the lowest digit.
+        lag = n_steps - 1 - (first + size - 1)
+        for j in range(J):
+            for i in range(n):
+                blocks[m, j, i] = table[lag, j, i]
+        count = J
+        for s in range(size - 2, -1, -1):
+            lag = n_steps - 1 - (first + s)
+            # Prepend step s as the highest digit: new index j * count + p. The
+            # slots of j = 0 are the old ones, so they are updated last.
+            for j in range(J - 1, -1, -1):
+                for p in range(count):
+                    for i in range(n):
+                        blocks[m, j * count + p, i] = blocks[m, p, i] + table[lag, j, i]
+            count *= J
     return blocks
 
 
