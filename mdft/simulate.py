@@ -586,10 +586,13 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
         )
     if n < 4:
         # Pad to width 4: the kernel then adds rows with straight-line code.
-        pad = 4 - n
-        blocks = np.pad(blocks, ((0, 0), (0, 0), (0, pad)))
-        base = np.pad(base, (0, pad))
-        L = np.pad(L, ((0, pad), (0, 0)))
+        padded = np.zeros(blocks.shape[:2] + (4,))
+        padded[..., :n] = blocks
+        padded_base = np.zeros(4)
+        padded_base[:n] = base
+        padded_L = np.zeros((4, L.shape[1]))
+        padded_L[:n] = L
+        blocks, base, L = padded, padded_base, padded_L
     return blocks, block_size, np.ascontiguousarray(base), np.ascontiguousarray(L)
 
 
