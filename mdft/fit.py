@@ -756,8 +756,7 @@ def fit(
     start : dict, optional
         First starting point for some fitted parameters. Unspecified ones start at the
         canonical values (``phi1=0.022, phi2=0.05, beta=12, sigma2=1``, uniform ``w``, the
-        given ``M``) clipped to the bounds; further starts are drawn uniformly from the
-        bounds with ``rng``.
+        given ``M``) clipped to the bounds; for the further starts see ``n_starts``.
     bounds : dict, optional
         ``(low, high)`` per fitted scalar parameter (defaults in ``DEFAULT_BOUNDS``:
         ``phi1 (0, 1)``, ``phi2 (0, 0.5)``, ``beta (0, 50)``, ``sigma2 (1e-3, 25)``) and for
