@@ -45,10 +45,10 @@ def main(argv=None):
     ap.add_argument("--horizon", type=int, default=None, help="default: 1.5 times the longest demonstration")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-precondition", action="store_true", help="run L-BFGS-B on the raw penalties")
-    ap.add_argument("--tol", type=float, default=None,
-                    help="projected-gradient tolerance; default 1 / n_demos, one expected visit over the data set")
+    ap.add_argument("--tol", type=float, default=1e-3,
+                    help="projected-gradient tolerance (mesc_irl's default 1e-3); 1 / n_demos is one visit over the data")
     ap.add_argument("--max-iter", type=int, default=1000)
-    ap.add_argument("--maxcor", type=int, default=10, help="L-BFGS-B memory")
+    ap.add_argument("--maxcor", type=int, default=40, help="L-BFGS-B memory")
     args = ap.parse_args(argv)
 
     # compile the kernels on a small world first, so the timings below exclude compilation
@@ -70,7 +70,7 @@ def main(argv=None):
     rss_before = peak_rss_mb()
 
     t0, c0 = time.perf_counter(), time.process_time()
-    tol = 1.0 / args.n_demos if args.tol is None else args.tol
+    tol = args.tol
     res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=not args.no_precondition, tol=tol,
                    max_iter=args.max_iter, maxcor=args.maxcor)
     t_fit, c_fit = time.perf_counter() - t0, time.process_time() - c0

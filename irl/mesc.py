@@ -394,7 +394,7 @@ def mesc_irl(
     max_iter=1000,
     tol=1e-3,
     precondition=False,
-    maxcor=10,
+    maxcor=40,
 ):
     """Learn soft constraints from demonstrations (MESC-IRL).
 
