@@ -26,16 +26,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from numba import prange
 
-from ._numba import JIT_OPTIONS, njit, njit_parallel
-
-# The per-draw helpers are inlined into the kernels at numba's IR level. Left
-# as separate compiled functions they cost an atomic reference-count update
-# of the state array on every call, which doubles the price of a normal draw.
-njit_inline = numba.njit(inline="always", **JIT_OPTIONS)
+from ._numba import njit, njit_inline, njit_parallel
 
 # ---------------------------------------------------------------- xoshiro256++
 _SH11 = np.uint64(11)

@@ -14,3 +14,11 @@ njit = numba.njit(**JIT_OPTIONS)
 
 njit_parallel = numba.njit(parallel=True, **JIT_OPTIONS)
 """Decorator for kernels whose outer loop is a ``prange`` over independent chunks."""
+
+njit_inline = numba.njit(inline="always", **JIT_OPTIONS)
+"""Decorator for small helpers inlined into the kernels at numba's IR level.
+
+Left as separate compiled functions, helpers that take the random-stream state
+array pay an atomic reference-count update on every call, which doubles the
+price of a normal draw.
+"""
