@@ -801,8 +801,8 @@ def fit(
     ``[0, 1]``, ``w`` by stick-breaking (``w_1 = v_1``, ``w_2 = (1 - v_1) v_2``, ...), and
     ``M`` entry by entry with its first row held fixed (adding a constant to a column of
     ``M`` changes neither ``C M`` nor the distances, so one row must anchor it). Smooth
-    likelihoods (closed form, exact threshold method) use L-BFGS-B with finite-difference
-    gradients; a simulated likelihood uses bounded Nelder-Mead with common random numbers.
+    likelihoods (closed form, exact threshold method) use L-BFGS-B with central
+    finite-difference gradients; a simulated likelihood uses bounded Nelder-Mead with common random numbers.
     Standard errors come from the inverse of the central-difference Hessian of the negative
     log-likelihood, mapped to natural units by the delta method; they are NaN (with a reason
     in ``se_notes``) for estimates on a bound, where the Hessian is not positive definite
@@ -915,8 +915,9 @@ def fit(
     for u0 in starts:
         if smooth:
             res = optimize.minimize(
-                negloglik, u0, method="L-BFGS-B", bounds=[(0.0, 1.0)] * layout.size,
-                options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7, "eps": 1e-7},
+                negloglik, u0, method="L-BFGS-B", jac="3-point",
+                bounds=[(0.0, 1.0)] * layout.size,
+                options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7},
             )
         else:
             res = optimize.minimize(
