@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import rel_entr
 
+from ._validation import check_indices, is_flat_set, split_trajectory, trajectory_list
+
 __all__ = [
     "HardConstraintScores",
     "SoftConstraintErrors",
@@ -494,48 +496,6 @@ def js_divergence(p, q) -> float:
     return min(max(value, 0.0), float(np.log(2.0)))
 
 
-def _is_flat_set(obj) -> bool:
-    """A set of trajectories stored flat, like :class:`irl.demonstrations.Demonstrations`."""
-    return all(hasattr(obj, k) for k in ("offsets", "trajectory", "__len__"))
-
-
-def _as_sequences(demos):
-    """``[(states, actions), ...]`` of a flat set (each with one more state than actions)."""
-    return [demos.trajectory(i) for i in range(len(demos))]
-
-
-def _pairs(traj, index: int):
-    """(states, actions) integer arrays of one trajectory, state-action aligned."""
-    states = actions = None
-    if hasattr(traj, "states") and hasattr(traj, "actions"):
-        states, actions = traj.states, traj.actions
-    elif isinstance(traj, tuple) and len(traj) == 2:
-        states, actions = traj
-    else:
-        arr = np.asarray(traj)
-        if arr.ndim == 2 and arr.shape[1] == 2:
-            states, actions = arr[:, 0], arr[:, 1]
-    if states is None:
-        raise TypeError(
-            f"trajectory {index} must be a (states, actions) pair, an (n, 2) array of "
-            f"state-action pairs or an object with .states and .actions (got {type(traj).__name__})"
-        )
-    s = np.asarray(states)
-    a = np.asarray(actions)
-    for name, arr in (("states", s), ("actions", a)):
-        if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-            raise TypeError(
-                f"trajectory {index}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})"
-            )
-    # A trajectory may list one more state than actions (the state reached last).
-    if s.size not in (a.size, a.size + 1):
-        raise ValueError(
-            f"trajectory {index} has {s.size} states and {a.size} actions; "
-            "there must be as many states as actions, or one more"
-        )
-    return s, a
-
-
 def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     """Count how often each state-action pair occurs in a set of trajectories.
 
@@ -569,7 +529,7 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     """
     n_states = _as_positive_int("n_states", n_states)
     n_actions = _as_positive_int("n_actions", n_actions)
-    if _is_flat_set(trajectories) and hasattr(trajectories, "states") and hasattr(trajectories, "actions"):
+    if is_flat_set(trajectories) and hasattr(trajectories, "states") and hasattr(trajectories, "actions"):
         s = np.asarray(trajectories.states)
         a = np.asarray(trajectories.actions)
         if len(trajectories) == 0 or s.size == 0:
@@ -583,27 +543,19 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
         counts = np.zeros((n_states, n_actions), dtype=np.int64)
         np.add.at(counts, (s.astype(np.intp), a.astype(np.intp)), 1)
         return counts
-    if _is_flat_set(trajectories):
-        trajectories = _as_sequences(trajectories)
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 2 and trajectories.shape[1] == 2:
         trajectories = [trajectories]
-    try:
-        items = list(trajectories)
-    except TypeError as exc:
-        raise TypeError(
-            f"trajectories must be a sequence of trajectories (got {type(trajectories).__name__})"
-        ) from exc
-    if not items:
-        raise ValueError("trajectories must hold at least one trajectory (got an empty set)")
+    items = trajectory_list(trajectories, "trajectories")
     counts = np.zeros((n_states, n_actions), dtype=np.int64)
     for i, traj in enumerate(items):
-        s, a = _pairs(traj, i)
-        if s.size and (s.min() < 0 or s.max() >= n_states):
-            bad = int(s.min() if s.min() < 0 else s.max())
-            raise ValueError(f"trajectory {i} has a state outside [0, {n_states}) (got {bad})")
-        if a.size and (a.min() < 0 or a.max() >= n_actions):
-            bad = int(a.min() if a.min() < 0 else a.max())
-            raise ValueError(f"trajectory {i} has an action outside [0, {n_actions}) (got {bad})")
+        s, a = split_trajectory(traj, i, noun="trajectory", rows=True)
+        # A trajectory may list one more state than actions (the state reached last).
+        if s.size not in (a.size, a.size + 1):
+            raise ValueError(
+                f"trajectory {i} has {s.size} states and {a.size} actions; "
+                "there must be as many states as actions, or one more"
+            )
+        check_indices(s, a, i, noun="trajectory", n_states=n_states, n_actions=n_actions)
         np.add.at(counts, (s[: a.size].astype(np.intp), a.astype(np.intp)), 1)
     if counts.sum() == 0:
         raise ValueError("trajectories hold no state-action pair (every trajectory is empty)")

@@ -14,8 +14,8 @@ import numbers
 
 import numpy as np
 
+from ._validation import trajectory_list
 from .gridworld import ACTION_MOVES, ACTIONS, COLOURS, GridWorld
-from .metrics import _as_sequences, _is_flat_set
 
 __all__ = [
     "plot_gridworld",
@@ -244,13 +244,9 @@ def plot_trajectories(ax, world, trajectories, *, color="tab:red", alpha=None, l
     """
     _check_axes(ax)
     _check_world(world)
-    if _is_flat_set(trajectories):
-        trajectories = _as_sequences(trajectories)
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 1:
         trajectories = [trajectories]
-    items = list(trajectories)
-    if not items:
-        raise ValueError("trajectories must hold at least one trajectory (got an empty set)")
+    items = trajectory_list(trajectories, "trajectories")
     if alpha is None:
         alpha = min(1.0, 2.0 / len(items))
     if isinstance(jitter, bool) or not isinstance(jitter, numbers.Real) or not jitter >= 0:

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ._validation import check_indices, split_trajectory, trajectory_list
 from .mdp import MDP
-from .metrics import _as_sequences, _is_flat_set
 from .planning import soft_value_iteration
 
 __all__ = ["HardConstraintResult", "infer_hard_constraints"]
@@ -68,36 +68,9 @@ def _as_trajectories(demonstrations, n_states, n_actions):
     """Integer (states, actions) pairs with len(states) == len(actions) + 1."""
     if demonstrations is None:
         raise ValueError("demonstrations must hold at least one trajectory (got None)")
-    if _is_flat_set(demonstrations):
-        demonstrations = _as_sequences(demonstrations)
-    try:
-        items = list(demonstrations)
-    except TypeError as exc:
-        raise TypeError(
-            f"demonstrations must be a sequence of trajectories (got {type(demonstrations).__name__})"
-        ) from exc
-    if not items:
-        raise ValueError("demonstrations must hold at least one trajectory (got an empty set)")
     out = []
-    for i, traj in enumerate(items):
-        if hasattr(traj, "states") and hasattr(traj, "actions"):
-            s, a = traj.states, traj.actions
-        elif isinstance(traj, dict) and "state_seq" in traj:
-            s, a = traj["state_seq"], traj["action_seq"]
-        elif isinstance(traj, (tuple, list)) and len(traj) == 2:
-            s, a = traj
-        else:
-            raise TypeError(
-                f"demonstration {i} must be a (states, actions) pair or an object with .states and "
-                f".actions (got {type(traj).__name__})"
-            )
-        s = np.asarray(s)
-        a = np.asarray(a)
-        for name, arr in (("states", s), ("actions", a)):
-            if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-                raise TypeError(
-                    f"demonstration {i}: {name} must be a 1-d integer array (got {arr.dtype}, shape {arr.shape})"
-                )
+    for i, traj in enumerate(trajectory_list(demonstrations, "demonstrations")):
+        s, a = split_trajectory(traj, i, noun="demonstration", dicts=True)
         if s.size == 0:
             raise ValueError(f"demonstration {i} has no state")
         if s.size != a.size + 1:
@@ -105,10 +78,7 @@ def _as_trajectories(demonstrations, n_states, n_actions):
                 f"demonstration {i} has {s.size} states and {a.size} actions; "
                 "it must have one more state than actions"
             )
-        if s.min() < 0 or s.max() >= n_states:
-            raise ValueError(f"demonstration {i} has a state outside [0, {n_states})")
-        if a.size and (a.min() < 0 or a.max() >= n_actions):
-            raise ValueError(f"demonstration {i} has an action outside [0, {n_actions})")
+        check_indices(s, a, i, noun="demonstration", n_states=n_states, n_actions=n_actions)
         out.append((s.astype(np.int64), a.astype(np.int64)))
     return out
 
