@@ -429,6 +429,19 @@ def soft_constraint_errors(true_cost, zeta_true, zeta_pred, *, chi=0.2) -> SoftC
 # --------------------------------------------------------------------------- divergences
 
 
+def _as_distributions(p, q):
+    """``p`` and ``q`` as float arrays of the same shape, each normalised to sum to one."""
+    pa = _as_nonnegative("p", p)
+    qa = _as_nonnegative("q", q)
+    _same_shape(("p", "q"), pa, qa)
+    sp, sq = pa.sum(), qa.sum()
+    if sp <= 0:
+        raise ValueError("p must have positive total mass (got all zeros)")
+    if sq <= 0:
+        raise ValueError("q must have positive total mass (got all zeros)")
+    return pa / sp, qa / sq
+
+
 def kl_divergence(p, q) -> float:
     """Kullback-Leibler divergence ``KL(p || q) = sum p log(p / q)`` in nats.
 
@@ -452,15 +465,8 @@ def kl_divergence(p, q) -> float:
     >>> kl_divergence([1, 1], [1, 0])
     inf
     """
-    pa = _as_nonnegative("p", p)
-    qa = _as_nonnegative("q", q)
-    _same_shape(("p", "q"), pa, qa)
-    sp, sq = pa.sum(), qa.sum()
-    if sp <= 0:
-        raise ValueError("p must have positive total mass (got all zeros)")
-    if sq <= 0:
-        raise ValueError("q must have positive total mass (got all zeros)")
-    value = float(np.sum(rel_entr(pa / sp, qa / sq)))
+    pa, qa = _as_distributions(p, q)
+    value = float(np.sum(rel_entr(pa, qa)))
     return max(value, 0.0)
 
 
@@ -482,15 +488,7 @@ def js_divergence(p, q) -> float:
     >>> round(js_divergence([1, 0], [0, 1]), 6) == round(float(np.log(2)), 6)
     True
     """
-    pa = _as_nonnegative("p", p)
-    qa = _as_nonnegative("q", q)
-    _same_shape(("p", "q"), pa, qa)
-    sp, sq = pa.sum(), qa.sum()
-    if sp <= 0:
-        raise ValueError("p must have positive total mass (got all zeros)")
-    if sq <= 0:
-        raise ValueError("q must have positive total mass (got all zeros)")
-    pa, qa = pa / sp, qa / sq
+    pa, qa = _as_distributions(p, q)
     m = 0.5 * (pa + qa)
     value = 0.5 * float(np.sum(rel_entr(pa, m))) + 0.5 * float(np.sum(rel_entr(qa, m)))
     return min(max(value, 0.0), float(np.log(2.0)))
