@@ -17,24 +17,11 @@ from ._numba import njit
 
 # --------------------------------------------------------------------- helpers
 @njit
-def expected_rewards(next_states, probs, rewards, terminal):
-    """r_bar[s, a] = sum_k probs[s, a, k] * rewards[s, a, k] (zero at terminal states)."""
-    n_states, n_actions, n_succ = probs.shape
-    out = np.zeros((n_states, n_actions))
-    for s in range(n_states):
-        if terminal[s]:
-            continue
-        for a in range(n_actions):
-            acc = 0.0
-            for k in range(n_succ):
-                acc += probs[s, a, k] * rewards[s, a, k]
-            out[s, a] = acc
-    return out
-
-
-@njit
 def penalised_expected_rewards(next_states, probs, rewards, terminal, u_src, u_act, u_dst):
-    """Expected reward of R - phi . omega where phi . omega = u_src[s] + u_act[a] + u_dst[s']."""
+    """Expected reward of R - phi . omega where phi . omega = u_src[s] + u_act[a] + u_dst[s'].
+
+    Zero at terminal states; zero penalties give the expected reward of R itself.
+    """
     n_states, n_actions, n_succ = probs.shape
     out = np.zeros((n_states, n_actions))
     for s in range(n_states):

@@ -495,7 +495,10 @@ class MDP:
     # -------------------------------------------------------------- helpers
     def expected_rewards(self):
         """Expected reward ``r[s, a] = sum_k probs[s, a, k] rewards[s, a, k]`` (zero at terminals), shape (S, A)."""
-        return _kernels.expected_rewards(self.next_states, self.probs, self.rewards, self.terminal)
+        no_penalty = np.zeros(self.n_states)
+        return _kernels.penalised_expected_rewards(
+            self.next_states, self.probs, self.rewards, self.terminal, no_penalty, np.zeros(self.n_actions), no_penalty
+        )
 
     def dense_transitions(self):
         """The dense tensor ``P[s, a, s']`` (for small MDPs and tests), shape (S, A, S)."""
