@@ -162,9 +162,7 @@ def plot_gridworld(
                                        edgecolor=_CELL_COLOURS[int(c)], linewidth=2.5))
     if show_constraints:
         for s in world.constrained_states:
-            x, y = world.coords(s)
-            ax.add_patch(Rectangle((x - 0.5, y - 0.5), 1, 1, fill=False, hatch="xx",
-                                   edgecolor="0.15", linewidth=0))
+            _hatch_cell(ax, *world.coords(s))
     for s, text in ((world.start, "S"), (world.goal, "G")):
         x, y = world.coords(s)
         ax.text(x, y, text, ha="center", va="center", fontsize=11, fontweight="bold",
@@ -271,10 +269,26 @@ def _text_colour(value, lo, hi):
     return "white" if (value - lo) / (hi - lo) > 0.6 else "black"
 
 
+def _hatch_cell(ax, x, y):
+    """Cross-hatch the unit cell centred on ``(x, y)`` (a true constraint)."""
+    from matplotlib.patches import Rectangle
+
+    ax.add_patch(Rectangle((x - 0.5, y - 0.5), 1, 1, fill=False, hatch="xx", edgecolor="0.15", linewidth=0))
+
+
 def _small_heat(ax, grid, cmap, vmin, vmax):
     lo, hi = _limits(grid[np.isfinite(grid)], vmin, vmax)
     ax.imshow(grid, origin="lower", cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
     return lo, hi
+
+
+def _label_cells(ax, cells, texts, vals, lo, hi, mask):
+    """Write ``texts[i]`` (if ``texts`` is given) and hatch where ``mask[i]`` in the cell ``cells[i]``."""
+    for i, (x, y) in enumerate(cells):
+        if texts is not None:
+            ax.text(x, y, texts[i], ha="center", va="center", fontsize=8, color=_text_colour(vals[i], lo, hi))
+        if mask is not None and mask[i]:
+            _hatch_cell(ax, x, y)
 
 
 def plot_action_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=None,
@@ -309,21 +323,15 @@ def plot_action_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=No
     (1, 2)
     """
     _check_axes(ax)
-    from matplotlib.patches import Rectangle
-
     vals = _values("values", values, len(ACTIONS), "action")
     mask = _mask("true", true, len(ACTIONS))
+    cells = [(1 + dx, 1 + dy) for dx, dy in ACTION_MOVES]
     grid = np.full((3, 3), np.nan)
-    for a, (dx, dy) in enumerate(ACTION_MOVES):
-        grid[1 + dy, 1 + dx] = vals[a]
+    for a, (x, y) in enumerate(cells):
+        grid[y, x] = vals[a]
     lo, hi = _small_heat(ax, grid, cmap, vmin, vmax)
-    for a, (dx, dy) in enumerate(ACTION_MOVES):
-        if annotate:
-            ax.text(1 + dx, 1 + dy, f"{_ARROWS[ACTIONS[a]]}\n{fmt.format(vals[a])}",
-                    ha="center", va="center", fontsize=8, color=_text_colour(vals[a], lo, hi))
-        if mask is not None and mask[a]:
-            ax.add_patch(Rectangle((dx + 0.5, dy + 0.5), 1, 1, fill=False, hatch="xx",
-                                   edgecolor="0.15", linewidth=0))
+    texts = [f"{_ARROWS[name]}\n{fmt.format(v)}" for name, v in zip(ACTIONS, vals)] if annotate else None
+    _label_cells(ax, cells, texts, vals, lo, hi, mask)
     ax.set_xticks([])
     ax.set_yticks([])
     ax.set_title("actions", fontsize=9)
@@ -357,18 +365,11 @@ def plot_colour_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=No
     ['none', 'blue', 'green']
     """
     _check_axes(ax)
-    from matplotlib.patches import Rectangle
-
     vals = _values("values", values, len(COLOURS), "colour")
     mask = _mask("true", true, len(COLOURS))
     lo, hi = _small_heat(ax, vals[None, :], cmap, vmin, vmax)
-    for c in range(len(COLOURS)):
-        if annotate:
-            ax.text(c, 0, fmt.format(vals[c]), ha="center", va="center", fontsize=8,
-                    color=_text_colour(vals[c], lo, hi))
-        if mask is not None and mask[c]:
-            ax.add_patch(Rectangle((c - 0.5, -0.5), 1, 1, fill=False, hatch="xx",
-                                   edgecolor="0.15", linewidth=0))
+    texts = [fmt.format(v) for v in vals] if annotate else None
+    _label_cells(ax, [(c, 0) for c in range(len(COLOURS))], texts, vals, lo, hi, mask)
     ax.set_xticks(range(len(COLOURS)), list(COLOURS))
     for tick, c in zip(ax.get_xticklabels(), ("black", "tab:blue", "tab:green")):
         tick.set_color(c)
