@@ -33,6 +33,7 @@ import numpy as np
 from scipy.special import rel_entr
 
 from ._validation import check_indices, is_flat_set, split_trajectory, trajectory_list
+from .mdp import _as_real
 
 __all__ = [
     "HardConstraintScores",
@@ -113,19 +114,6 @@ def _as_nonnegative(name: str, value) -> np.ndarray:
     if np.any(arr < 0):
         raise ValueError(f"{name} must be non-negative (got {arr[arr < 0][0]})")
     return arr
-
-
-def _as_real(name: str, value, *, low=None, high=None) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number (got {value!r})")
-    x = float(value)
-    if not np.isfinite(x):
-        raise ValueError(f"{name} must be finite (got {x})")
-    if low is not None and x < low:
-        raise ValueError(f"{name} must be >= {low} (got {x})")
-    if high is not None and x > high:
-        raise ValueError(f"{name} must be <= {high} (got {x})")
-    return x
 
 
 def _as_positive_int(name: str, value) -> int:

@@ -38,14 +38,13 @@ that decrease is below ``min_kl_decrease``, when the divergence itself is at mos
 from __future__ import annotations
 
 import logging
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from ._validation import check_indices, split_trajectory, trajectory_list
-from .mdp import MDP
+from .mdp import MDP, _as_int, _as_real
 from .planning import soft_value_iteration
 
 __all__ = ["HardConstraintResult", "infer_hard_constraints"]
@@ -93,29 +92,6 @@ def _check_deterministic(mdp):
             f"{int(s)} action {int(a)} has several successors (largest probability "
             f"{mdp.probs[s, a].max():.3g}); use a world with p_slip=0, or MESC-IRL for stochastic worlds"
         )
-
-
-def _as_number(name, value, *, low=None, allow_none=False):
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number (got {value!r})")
-    x = float(value)
-    if not np.isfinite(x):
-        raise ValueError(f"{name} must be finite (got {x})")
-    if low is not None and x < low:
-        raise ValueError(f"{name} must be >= {low} (got {x})")
-    return x
-
-
-def _as_count(name, value, *, low=1, allow_none=False):
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
-        raise TypeError(f"{name} must be an integer (got {value!r})")
-    if int(value) < low:
-        raise ValueError(f"{name} must be an integer >= {low} (got {int(value)})")
-    return int(value)
 
 
 def _candidate_mask(candidates, n_features):
@@ -305,7 +281,7 @@ class HardConstraintResult:
         >>> float(pen.max()), int((pen > 0).sum()) == res.n_constraints
         (50.0, True)
         """
-        penalty = _as_number("penalty", penalty, low=0.0)
+        penalty = _as_real("penalty", penalty, low=0.0)
         return np.where(self.mask, penalty, 0.0)
 
     def policy(self, mdp):
@@ -428,14 +404,16 @@ def infer_hard_constraints(
     longest = max(a.size for _, a in trajs)
     if horizon is None:
         horizon = max(1, 2 * longest)
-    horizon = _as_count("horizon", horizon)
+    horizon = _as_int("horizon", horizon)
     if horizon < longest:
         raise ValueError(
             f"horizon must be at least the longest demonstration ({longest} steps) (got {horizon})"
         )
-    min_kl_decrease = _as_number("min_kl_decrease", min_kl_decrease, low=0.0)
-    kl_threshold = _as_number("kl_threshold", kl_threshold, low=0.0, allow_none=True)
-    max_constraints = _as_count("max_constraints", max_constraints, low=0, allow_none=True)
+    min_kl_decrease = _as_real("min_kl_decrease", min_kl_decrease, low=0.0)
+    if kl_threshold is not None:
+        kl_threshold = _as_real("kl_threshold", kl_threshold, low=0.0)
+    if max_constraints is not None:
+        max_constraints = _as_int("max_constraints", max_constraints, low=0)
     cand = _candidate_mask(candidates, mdp.n_features)
 
     base = mdp.replace(discount=1.0)
