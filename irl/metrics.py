@@ -85,15 +85,21 @@ def _same_shape(names: tuple[str, str], a: np.ndarray, b: np.ndarray) -> None:
         )
 
 
-def _as_probabilities(name: str, value) -> np.ndarray:
+def _as_vector(name: str, value, what: str) -> np.ndarray:
+    """``value`` as a new finite 1-d float array; ``what`` names its entries in the TypeError."""
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be an array of probabilities (got {value!r})") from exc
+        raise TypeError(f"{name} must be an array of {what} (got {value!r})") from exc
     if arr.ndim != 1:
         raise ValueError(f"{name} must be a 1-d array (got shape {arr.shape})")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite (got NaN or infinity)")
+    return arr
+
+
+def _as_probabilities(name: str, value) -> np.ndarray:
+    arr = _as_vector(name, value, "probabilities")
     if np.any((arr < 0) | (arr > 1)):
         bad = arr[(arr < 0) | (arr > 1)][0]
         raise ValueError(f"{name} must lie in [0, 1] (got {bad})")
@@ -379,14 +385,7 @@ def soft_constraint_errors(true_cost, zeta_true, zeta_pred, *, chi=0.2) -> SoftC
     >>> e.n_false_positive, e.n_false_negative, e.false_positives, e.false_negative_share
     (1, 1, 0.25, 0.5)
     """
-    try:
-        cost = np.array(true_cost, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"true_cost must be an array of numbers (got {true_cost!r})") from exc
-    if cost.ndim != 1:
-        raise ValueError(f"true_cost must be a 1-d array (got shape {cost.shape})")
-    if not np.all(np.isfinite(cost)):
-        raise ValueError("true_cost must be finite (got NaN or infinity)")
+    cost = _as_vector("true_cost", true_cost, "numbers")
     zt = _as_probabilities("zeta_true", zeta_true)
     zp = _as_probabilities("zeta_pred", zeta_pred)
     _same_shape(("true_cost", "zeta_true"), cost, zt)
