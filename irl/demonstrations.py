@@ -16,6 +16,7 @@ import numpy as np
 from . import _kernels
 from .mdp import MDP, _as_int
 from .planning import check_policy, soft_value_iteration
+from ._repr import compact_repr
 
 __all__ = ["Demonstrations", "sample_trajectories", "generate_demonstrations"]
 
@@ -58,6 +59,8 @@ class Demonstrations:
     >>> d.trajectory(0)
     ([0, 1, 2], [1, 1])
     """
+
+    __repr__ = compact_repr
 
     offsets: np.ndarray
     states: np.ndarray

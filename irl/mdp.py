@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _kernels
+from ._repr import compact_repr
 
 __all__ = ["MDP", "TransitionFeatures"]
 
@@ -149,6 +150,8 @@ class TransitionFeatures:
     >>> f.phi(0, 1, 2).tolist()
     [0.0, 1.0]
     """
+
+    __repr__ = compact_repr
 
     source: object = None
     action: object = None
@@ -300,6 +303,8 @@ class MDP:
     >>> mdp.n_states, mdp.n_actions, mdp.n_successors
     (2, 1, 1)
     """
+
+    __repr__ = compact_repr
 
     next_states: np.ndarray
     probs: np.ndarray

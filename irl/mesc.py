@@ -43,6 +43,7 @@ from scipy.optimize import minimize
 from . import _kernels
 from .demonstrations import Demonstrations
 from .mdp import MDP, _as_float, _as_int, _as_real
+from ._repr import compact_repr
 
 __all__ = ["MESCObjective", "MESCResult", "LearnedConstraint", "mesc_irl", "constraint_probability"]
 
@@ -261,6 +262,8 @@ class MESCResult:
     >>> res.transition_zeta().shape
     (16, 8, 8)
     """
+
+    __repr__ = compact_repr
 
     penalties: np.ndarray
     feature_names: tuple

@@ -28,6 +28,7 @@ import numpy as np
 
 from . import _kernels
 from .mdp import MDP, _as_float, _as_int, _as_real
+from ._repr import compact_repr
 
 __all__ = [
     "PlanningResult",
@@ -63,6 +64,8 @@ class PlanningResult:
     converged : bool
     """
 
+    __repr__ = compact_repr
+
     values: np.ndarray
     q_values: np.ndarray
     policy: np.ndarray
@@ -88,6 +91,8 @@ class SoftPlanningResult:
         Always True for a finite horizon.
     """
 
+    __repr__ = compact_repr
+
     values: np.ndarray
     q_values: np.ndarray
     policy: np.ndarray
@@ -112,6 +117,8 @@ class VisitationResult:
     n_iter : int
     converged : bool
     """
+
+    __repr__ = compact_repr
 
     state_action: np.ndarray
     states: np.ndarray

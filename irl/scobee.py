@@ -46,6 +46,7 @@ import scipy.sparse as sp
 from ._validation import check_indices, split_trajectory, trajectory_list
 from .mdp import MDP, _as_int, _as_real
 from .planning import soft_value_iteration
+from ._repr import compact_repr
 
 __all__ = ["HardConstraintResult", "infer_hard_constraints"]
 
@@ -250,6 +251,8 @@ class HardConstraintResult:
     >>> bool(res.kl[-1] < res.kl_initial)
     True
     """
+
+    __repr__ = compact_repr
 
     constraints: np.ndarray
     names: tuple

@@ -26,6 +26,7 @@ import numpy as np
 from . import _kernels
 from ._validation import as_count, as_float_array, as_scalar
 from .model import MDFTModel
+from ._repr import compact_repr
 
 __all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
 
@@ -175,6 +176,8 @@ class SimulationResult:
     >>> res.trajectories.shape[0], res.trajectories.shape[2]
     (2, 2)
     """
+
+    __repr__ = compact_repr
 
     probabilities: np.ndarray
     counts: np.ndarray

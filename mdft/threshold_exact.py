@@ -27,6 +27,7 @@ import scipy.sparse.linalg as spla
 from . import _lattice
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
+from ._repr import compact_repr
 
 __all__ = ["ThresholdProbabilities", "threshold_probabilities"]
 
@@ -83,6 +84,8 @@ class ThresholdProbabilities:
         First row of ``rt_pmf`` filled in geometrically (see ``tail_tol``),
         or None when every step was propagated.
     """
+
+    __repr__ = compact_repr
 
     probabilities: np.ndarray
     p_undecided: float
