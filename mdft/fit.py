@@ -389,6 +389,17 @@ class FitResult:
         The stopping rule used.
     model : MDFTModel
         The fitted model on the whole option set.
+
+    Examples
+    --------
+    >>> import mdft
+    >>> data = mdft.ChoiceData([[0, 1], [0, 1, 2]], [[520, 480], [300, 310, 390]])
+    >>> res = mdft.fit(data, [[1, 3], [3, 1], [2, 2]], stopping=40, params=["w"],
+    ...                fixed=dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0), rng=0)
+    >>> res.fitted, res.n_params, res.converged
+    (('w',), 1, True)
+    >>> bool(res.aic == 2 * res.n_params - 2 * res.log_likelihood)
+    True
     """
 
     params: dict
