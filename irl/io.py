@@ -8,6 +8,8 @@ The paper's small data files ship with the package (``irl/data``, MIT licence).
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from importlib import resources
 from pathlib import Path
 
@@ -28,6 +30,23 @@ __all__ = [
     "save_demonstrations",
     "load_demonstrations",
 ]
+
+def _write_atomically(path, write) -> None:
+    """Write a file through ``write(binary_file)`` so that it appears whole or not at all.
+
+    The data go to a temporary file beside ``path`` that replaces ``path`` only once it is
+    complete: an interrupted save never leaves a truncated file, nor destroys an older one.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
 
 _PAPER_FILES = {"scobee_example": "scobee_example_data.json", "random_10": "random_data_10.json"}
 _RESULT_FORMAT = "pymdft.mesc_result"
@@ -133,7 +152,7 @@ def save_mesc_result(result, path):
         "converged": result.converged,
         "message": result.message,
     }
-    Path(path).write_text(json.dumps(doc, indent=1))
+    _write_atomically(path, lambda fh: fh.write(json.dumps(doc, indent=1).encode()))
 
 
 def load_mesc_result(path, nominal):
@@ -203,7 +222,7 @@ def save_mdp(mdp, path):
         for key in ("source", "action", "destination"):
             m = getattr(f, key)
             arrays[f"{key}_data"], arrays[f"{key}_indices"], arrays[f"{key}_indptr"] = m.data, m.indices, m.indptr
-    np.savez_compressed(path, **arrays)
+    _write_atomically(path, lambda fh: np.savez_compressed(fh, **arrays))
 
 
 def load_mdp(path):
@@ -242,7 +261,7 @@ def save_demonstrations(demonstrations, path):
     doc = demonstrations.to_dict()
     if demonstrations.reached_terminal is not None:
         doc["reached_terminal"] = demonstrations.reached_terminal.tolist()
-    Path(path).write_text(json.dumps(doc))
+    _write_atomically(path, lambda fh: fh.write(json.dumps(doc).encode()))
 
 
 def load_demonstrations(path):

@@ -1,0 +1,37 @@
+"""Saving is all-or-nothing: an interrupted save leaves the earlier file intact."""
+
+import json
+
+import numpy as np
+import pytest
+
+import irl
+from irl import io
+
+
+def test_interrupted_save_keeps_the_old_file(tmp_path, monkeypatch):
+    world = irl.load_paper_worlds("scobee_example")[0]
+    demos = irl.generate_demonstrations(world.constrained_mdp, 3, rng=0)
+    path = tmp_path / "demos.json"
+    irl.save_demonstrations(demos, path)
+    before = path.read_bytes()
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io.json, "dumps", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        irl.save_demonstrations(irl.generate_demonstrations(world.constrained_mdp, 5, rng=1), path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["demos.json"]  # no partial file is left
+    monkeypatch.undo()
+    assert len(json.loads(path.read_text())) > 0
+
+
+def test_mdp_round_trip_writes_exactly_the_given_path(tmp_path):
+    world = irl.load_paper_worlds("scobee_example")[0]
+    path = tmp_path / "world.npz"
+    irl.save_mdp(world.nominal_mdp, path)
+    back = irl.load_mdp(path)
+    assert np.array_equal(back.probs, world.nominal_mdp.probs)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["world.npz"]
