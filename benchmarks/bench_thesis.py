@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 import mdft  # noqa: E402
 from mdft.datasets import load_sushi, load_thesis_set  # noqa: E402
 
-FIXED_TIME_SETS = [
+THESIS_SETS = [  # the same ten file names under time_based/ and pref_based/
     "set_nopts3_ncomb1_nproblem50_no3.mat",
     "set_nopts5_ncomb1_nproblem50_no5.mat",
     "set_nopts7_ncomb1_nproblem50_no7.mat",
@@ -185,6 +185,8 @@ def main(argv=None):
     ap.add_argument("--problems", type=int, default=None, help="problems per set")
     ap.add_argument("--with-M", action="store_true", help="also fit M on multi-subset sets")
     ap.add_argument("--threshold", action="store_true", help="also the pref_based sets")
+    ap.add_argument("--only", nargs="+", default=None, metavar="PART",
+                    help="only the sets whose file name contains one of these, e.g. nopts5_ncomb1")
     ap.add_argument("--no-sushi", action="store_true")
     ap.add_argument("--no-thesis", action="store_true", help="only the SUSHI part")
     ap.add_argument("--no-fixed-time", action="store_true", help="skip the time_based sets")
@@ -209,7 +211,8 @@ def thesis(folder, n, args):
     print(f"# thesis data sets, {n} problems per set; w fitted with the other parameters true")
     print(f"{'set':<42s} {'fit':<4s} {'n':>3s} {'mse':>9s} {'mse_thesis':>10s} "
           f"{'floor':>10s} {'|dw|':>7s} {'max':>6s} {'<=.05':>6s} {'s/prob':>7s} {'conv':>5s}")
-    for name in [] if args.no_fixed_time else FIXED_TIME_SETS:
+    chosen = [name for name in THESIS_SETS if not args.only or any(o in name for o in args.only)]
+    for name in [] if args.no_fixed_time else chosen:
         rows = run_set(folder / "time_based" / name, n, ["w"])
         print(summarise("time_based/" + name, ["w"], rows), flush=True)
     if args.with_M:
@@ -219,7 +222,7 @@ def thesis(folder, n, args):
                                params, n_starts=1)
                 print(summarise("time_based/" + name, params, rows), flush=True)
     if args.threshold:
-        for name in ["set_nopts3_ncomb1_nproblem50_no3.mat", "set_nopts7_ncomb3_nproblem50_no3.mat"]:
+        for name in chosen:
             rows = run_set(folder / "pref_based" / name, min(n, 3 if args.quick else n), ["w"],
                            n_starts=2, threshold=True)
             print(summarise("pref_based/" + name, ["w"], rows), flush=True)
