@@ -168,7 +168,7 @@ def test_compromise_model_is_slightly_expansive():
 
 
 def test_scenario_is_frozen_and_hashable():
-    with pytest.raises(AttributeError):
+    with pytest.raises(AttributeError, match="cannot assign to field 'phi1'"):
         SIMILARITY.phi1 = 0.1
     assert hash(SIMILARITY) == hash(SIMILARITY.with_parameters())
 

@@ -45,8 +45,8 @@ def test_choice_data_counts_and_shares():
     assert d.n_trials.tolist() == [4, 10]
     np.testing.assert_allclose(d.shares[1], [0.0, 0.5, 0.5])
     assert d.response_times is None and d.mean_response_times is None
-    with pytest.raises(ValueError):
-        d.counts[0][0] = 7  # read-only
+    with pytest.raises(ValueError, match="read-only"):
+        d.counts[0][0] = 7
 
 
 def test_choice_data_from_trials_groups_by_set_and_keeps_times():
@@ -198,7 +198,7 @@ def test_predict_and_result_is_frozen():
         np.testing.assert_allclose(a, b, atol=0.02)
     with pytest.raises(ValueError, match="refers to option 9"):
         res.predict([[0, 9]])
-    with pytest.raises(AttributeError):
+    with pytest.raises(AttributeError, match="cannot assign to field 'mse'"):
         res.mse = 0.0
     assert isinstance(res.model, mdft.MDFTModel)
 

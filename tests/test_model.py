@@ -73,7 +73,7 @@ def test_arrays_are_read_only_copies():
     model = MDFTModel(M, [0.5, 0.5], **CANON)
     M[0, 0] = 99.0
     assert model.M[0, 0] == 1.0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         model.S[0, 0] = 0.0
 
 

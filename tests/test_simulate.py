@@ -299,9 +299,9 @@ def test_undecided_trials_are_counted_not_dropped(compromise):
 
 def test_result_is_frozen(compromise):
     res = mdft.simulate(compromise, 100, stopping=mdft.FixedTime(5), rng=0)
-    with pytest.raises(AttributeError):
+    with pytest.raises(AttributeError, match="cannot assign to field 'n_samples'"):
         res.n_samples = 3
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         res.probabilities[0] = 1.0
 
 

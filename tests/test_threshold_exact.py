@@ -289,7 +289,7 @@ def test_result_is_frozen_and_reports_the_lattice():
     res = threshold_probabilities(canonical([A, B]), 5.0, n_cells=20)
     assert res.n_cells == 20 and res.spacing == pytest.approx(0.25)
     assert res.theta == 5.0 and res.method == "propagate"
-    with pytest.raises(AttributeError):
+    with pytest.raises(AttributeError, match="cannot assign to field 'theta'"):
         res.theta = 1.0
 
 
