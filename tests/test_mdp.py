@@ -45,8 +45,10 @@ def test_defaults_and_readonly():
     mdp = MDP.from_dense(P, R)
     np.testing.assert_allclose(mdp.start, 0.25)
     assert mdp.discount == 1.0 and not mdp.terminal.any()
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         mdp.probs[0, 0, 0] = 0.5
+    for name in ("next_states", "rewards", "start", "terminal"):
+        assert not getattr(mdp, name).flags.writeable, name
 
 
 def test_arguments_not_mutated_and_not_aliased():
