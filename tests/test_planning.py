@@ -143,16 +143,34 @@ def test_visitation_matches_linear_solve():
     np.testing.assert_allclose(res.states, d, atol=1e-10)
 
 
+def expected_discounted_length(P, term, discount, pol, start):
+    """sum_t discount**t P(the trajectory is still running at step t), by a NumPy forward pass."""
+    d = np.array(start, dtype=float)
+    total = 0.0
+    for t in range(pol.shape[0]):
+        d = np.where(term, 0.0, d)
+        total += discount**t * d.sum()
+        d = np.einsum("s,sa,sat->t", d, pol[t], P)
+    return total
+
+
 @settings(deadline=None, max_examples=15)
-@given(seed=st.integers(0, 10_000), horizon=st.integers(1, 6))
-def test_policies_are_distributions(seed, horizon):
-    mdp, *_ = random_mdp(seed)
+@given(seed=st.integers(0, 10_000), horizon=st.integers(1, 6), discount=st.sampled_from([1.0, 0.8]),
+       terminal=st.booleans())
+def test_policies_are_distributions_and_visitation_is_the_expected_length(seed, horizon, discount, terminal):
+    mdp, P, _, term = random_mdp(seed, discount=discount, terminal=terminal)
     soft = soft_value_iteration(mdp, horizon=horizon)
     np.testing.assert_allclose(soft.policy.sum(-1), 1.0, atol=1e-12)
     assert np.all(soft.policy >= 0)
     vis = state_action_visitation(mdp, soft.policy)
-    # undiscounted... discounted mass is at most the sum of discounts
-    assert vis.states.sum() <= sum(mdp.discount**t for t in range(horizon)) + 1e-9
+    np.testing.assert_allclose(vis.state_action.sum(1), vis.states, atol=1e-12)
+    # the forward pass runs over the backward pass's horizon: its total mass is the
+    # expected (discounted) number of steps taken before the horizon or a terminal state
+    length = expected_discounted_length(P, term, discount, soft.policy, mdp.start)
+    assert vis.states.sum() == pytest.approx(length, rel=1e-12, abs=1e-12)
+    if not terminal and discount == 1.0:
+        assert vis.states.sum() == pytest.approx(horizon, rel=1e-12)
+    assert np.all(vis.states[term] == 0.0)
 
 
 def test_gridworld_value_iteration_deterministic_shortest_path():
