@@ -82,6 +82,29 @@ def test_deterministic_gradient_is_expected_minus_empirical_counts():
     assert expected[world.feature_slices["action"]].sum() == pytest.approx(d.state_action.sum())
 
 
+@pytest.mark.parametrize("p_slip,discount", [(0.0, 1.0), (0.2, 1.0), (0.1, 0.8)])
+def test_expected_counts_cover_the_expected_trajectory_length(p_slip, discount):
+    # backward and forward passes share the horizon and the discount: each feature block
+    # (one destination, one action, one colour per step) sums to the expected discounted
+    # number of steps of the soft policy, computed here by a plain NumPy forward pass
+    world = small_world(p_slip, discount)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=4)
+    obj = MESCObjective(world.nominal_mdp, demos, horizon=9)
+    w = np.random.default_rng(4).uniform(0.0, 4.0, world.n_features)
+    pol = obj.policy(w)
+    assert pol.shape == (9, world.n_states, world.n_actions)
+    nom = world.nominal_mdp
+    P = nom.dense_transitions()
+    d, length = np.array(obj.start), 0.0
+    for t in range(obj.horizon):
+        d = np.where(nom.terminal, 0.0, d)
+        length += discount**t * d.sum()
+        d = np.einsum("s,sa,sat->t", d, pol[t], P)
+    expected, _ = obj.feature_counts(w)
+    for block in ("state", "action", "colour"):
+        assert expected[world.feature_slices[block]].sum() == pytest.approx(length, rel=1e-10), block
+
+
 # ---------------------------------------------------------------- learning
 def test_recovers_figure1_constraints(figure1):
     world = figure1.replace(p_slip=0.1)
