@@ -61,6 +61,21 @@ def test_nominal_and_true_rewards():
     assert w.true_penalties.sum() == pytest.approx(50 * 9)
 
 
+def reachable_without_penalty(world):
+    """Breadth-first search over the deterministic moves whose true reward equals the nominal one."""
+    det = world.replace(p_slip=0.0)
+    n, c = det.nominal_mdp, det.constrained_mdp
+    seen, frontier = {det.start}, [det.start]
+    while frontier:
+        s = frontier.pop()
+        for a in range(n.n_actions):
+            s2 = int(n.next_states[s, a, 0])
+            if c.rewards[s, a, 0] == n.rewards[s, a, 0] and s2 not in seen:
+                seen.add(s2)
+                frontier.append(s2)
+    return det.goal in seen
+
+
 def test_random_worlds_distinct_reachable_and_seeded():
     for seed in range(20):
         w = GridWorld.random(rng=seed)
@@ -70,6 +85,12 @@ def test_random_worlds_distinct_reachable_and_seeded():
         (sx, sy), (gx, gy) = w.coords(w.start), w.coords(w.goal)
         assert np.hypot(sx - gx, sy - gy) >= 8
         assert w.constraint_free_path_exists()
+        assert reachable_without_penalty(w)
+        # every true constraint is a distinct feature carrying its own -50
+        assert len(set(w.constrained_colours)) == len(w.constrained_colours) == 2
+        n_true = len(w.constrained_states) + len(w.constrained_actions) + len(w.constrained_colours)
+        assert int(w.constraint_mask.sum()) == n_true == 10
+        assert w.true_penalties.sum() == pytest.approx(50 * n_true)
     a, b = GridWorld.random(rng=3), GridWorld.random(rng=3)
     assert a.to_dict() == b.to_dict()
     assert GridWorld.random(rng=4).to_dict() != a.to_dict()
