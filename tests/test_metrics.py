@@ -79,11 +79,16 @@ def test_hard_scores_identities(pairs):
     assert s.precision + s.false_discovery_rate == pytest.approx(1.0)
     for x in (s.precision, s.recall, s.false_positive_rate):
         assert 0.0 <= x <= 1.0
-    # Slow reference.
+    # Slow reference, with the documented 0/0 convention (precision and recall 1, rates 0).
     tp = sum(t and p for t, p in pairs)
     fp = sum((not t) and p for t, p in pairs)
-    if tp + fp:
-        assert s.precision == pytest.approx(tp / (tp + fp))
+    fn = sum(t and not p for t, p in pairs)
+    tn = sum((not t) and (not p) for t, p in pairs)
+    assert (s.n_true_positive, s.n_false_positive, s.n_false_negative, s.n_true_negative) == (tp, fp, fn, tn)
+    assert s.precision == pytest.approx(tp / (tp + fp) if tp + fp else 1.0)
+    assert s.recall == pytest.approx(tp / (tp + fn) if tp + fn else 1.0)
+    assert s.false_positive_rate == pytest.approx(fp / (fp + tn) if fp + tn else 0.0)
+    assert s.false_discovery_rate == pytest.approx(fp / (tp + fp) if tp + fp else 0.0)
 
 
 def test_hard_bad_input():
@@ -213,6 +218,8 @@ def test_divergence_properties(p, data):
     assert kl == pytest.approx(slow_kl(p, q), rel=1e-9, abs=1e-12)
     js = js_divergence(p, q)
     assert 0 <= js <= math.log(2) + 1e-12
+    m = np.asarray(p) / np.sum(p) + np.asarray(q) / np.sum(q)
+    assert js == pytest.approx(0.5 * slow_kl(p, m) + 0.5 * slow_kl(q, m), rel=1e-9, abs=1e-12)
     assert js == pytest.approx(js_divergence(q, p), abs=1e-12)
 
 
