@@ -83,6 +83,26 @@ def test_penalised_subtracts_feature_values():
     np.testing.assert_allclose(counts, src.sum(0) + act.sum(0))
 
 
+def test_feature_arrays_and_penalties_not_mutated():
+    S, A, F = 3, 2, 4
+    rng = np.random.default_rng(2)
+    src, act, dst = rng.random((S, F)), rng.random((A, F)), rng.random((S, F))
+    copies = [x.copy() for x in (src, act, dst)]
+    feats = TransitionFeatures(src, act, dst)
+    mdp = MDP.from_dense(np.full((S, A, S), 1 / 3), features=feats)
+    omega = rng.random(F)
+    omega_copy = omega.copy()
+    pen = mdp.penalised(omega)
+    mdp.penalised(2 * omega)
+    for x, c in zip((src, act, dst), copies):
+        np.testing.assert_array_equal(x, c)
+    np.testing.assert_array_equal(omega, omega_copy)
+    # nor does writing to the caller's arrays afterwards reach the MDP's features
+    before = pen.rewards.copy()
+    src[:] = 0.0
+    np.testing.assert_array_equal(mdp.penalised(omega).rewards, before)
+
+
 def test_replace_and_unknown_field():
     P, R = tiny()
     mdp = MDP.from_dense(P, R)

@@ -174,6 +174,9 @@ def test_bounds_and_ridge():
     assert capped.penalties.max() <= 5.0
     ridge = mesc_irl(world.nominal_mdp, demos, l2=1.0)
     free = mesc_irl(world.nominal_mdp, demos)
+    # the cap binds: the free fit goes above it, so the capped fit is a worse fit
+    assert free.penalties.max() > 5.0 and capped.penalties.max() == pytest.approx(5.0)
+    assert capped.objective < free.objective
     assert np.linalg.norm(ridge.penalties) < np.linalg.norm(free.penalties)
     assert free.objective >= ridge.objective
     scaled = mesc_irl(world.nominal_mdp, demos, precondition=True)
