@@ -98,6 +98,12 @@ def test_random_worlds_distinct_reachable_and_seeded():
     assert big.n_states == 900 and len(big.blue) == 40
 
 
+def test_arguments_not_mutated():
+    blue, green, states, actions = [4, 13], [58], [31, 39], ["up_left"]
+    GridWorld(9, 0, 8, blue=blue, green=green, constrained_states=states, constrained_actions=actions)
+    assert (blue, green, states, actions) == ([4, 13], [58], [31, 39], ["up_left"])
+
+
 def test_random_gives_up_cleanly():
     with pytest.raises(ValueError, match="too few for"):
         GridWorld.random(3, n_blue=6)
@@ -107,6 +113,7 @@ def test_random_gives_up_cleanly():
 
 def test_paper_worlds_load(shared_data):
     entries = json.loads((shared_data / "paper" / "scobee_example_data.json").read_text())
+    snapshot = json.dumps(entries[0], sort_keys=True)
     w = GridWorld.from_dict(entries[0])
     ref = figure1()
     assert w.constrained_states == ref.constrained_states
@@ -117,6 +124,7 @@ def test_paper_worlds_load(shared_data):
     assert all(len(x.constrained_states) == 6 and len(x.constrained_actions) == 2 for x in worlds)
     back = GridWorld.from_dict(w.to_dict())
     assert back.to_dict() == w.to_dict()
+    assert json.dumps(entries[0], sort_keys=True) == snapshot  # the entry is not mutated
     from irl import load_paper_worlds
 
     packaged = load_paper_worlds("random_10")

@@ -223,6 +223,20 @@ def test_divergence_properties(p, data):
     assert js == pytest.approx(js_divergence(q, p), abs=1e-12)
 
 
+def test_inputs_not_mutated():
+    p, q = np.array([3.0, 1.0, 0.0]), np.array([1.0, 1.0, 2.0])
+    true, pred = np.array([True, False, True]), np.array([True, True, False])
+    cost, zt, zp = np.array([0.0, -50.0]), np.array([0.2, 0.9]), np.array([0.5, 0.5])
+    args = (p, q, true, pred, cost, zt, zp)
+    copies = [x.copy() for x in args]
+    kl_divergence(p, q)
+    js_divergence(p, q)
+    hard_constraint_scores(true, pred)
+    soft_constraint_errors(cost, zt, zp, chi=0.1)
+    for x, c in zip(args, copies):
+        np.testing.assert_array_equal(x, c)
+
+
 def test_divergence_bad_input():
     with pytest.raises(ValueError, match="same shape"):
         kl_divergence([0.5, 0.5], [1.0])

@@ -139,13 +139,20 @@ def test_stopping_rules():
     assert all(9 <= c < 17 for c in only_actions.constraints)
 
 
-def test_same_input_same_result():
+def test_same_input_same_result_and_no_mutation():
     world = small_world()
-    demos = [([0, 4, 5, 2], [5, 1, 3])]
-    a = infer_hard_constraints(world.nominal_mdp, demos, horizon=5)
+    states, actions = np.array([0, 4, 5, 2]), np.array([5, 1, 3])
+    demos = [(states, actions)]
+    candidates = np.arange(world.n_features)
+    a = infer_hard_constraints(world.nominal_mdp, demos, horizon=5, candidates=candidates)
     b = infer_hard_constraints(world.nominal_mdp, demos, horizon=5)
     np.testing.assert_array_equal(a.constraints, b.constraints)
     np.testing.assert_array_equal(a.kl, b.kl)
+    assert a.n_constraints > 0
+    np.testing.assert_array_equal(states, [0, 4, 5, 2])
+    np.testing.assert_array_equal(actions, [5, 1, 3])
+    np.testing.assert_array_equal(candidates, np.arange(world.n_features))
+    assert len(demos) == 1 and demos[0][0] is states
 
 
 def test_accepts_demonstration_formats():
