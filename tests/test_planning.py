@@ -54,6 +54,10 @@ def test_value_iteration_matches_policy_enumeration(seed):
     q[term] = 0.0
     np.testing.assert_allclose(res.q_values, q, atol=1e-9)
     np.testing.assert_allclose(res.policy.sum(1), 1.0)
+    best = res.q_values >= res.q_values.max(axis=1, keepdims=True) - 1e-9
+    live = ~term
+    assert np.all(res.policy[live][~best[live]] == 0.0)
+    np.testing.assert_allclose((res.policy * q).sum(1)[live], res.values[live], atol=1e-9)
 
 
 def enumerate_soft(P, R, term, discount, pol, s0, H):
