@@ -6,8 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+import mdft
 from orchestration.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,6 +43,15 @@ def test_simulate_json_is_complete_and_sums_to_one(capsys):
     assert data["parameters"] == {"phi1": 0.022, "phi2": 0.05, "beta": 12.0, "sigma2": 1.0}
     assert data["seed"] == 0 and data["w"] == [0.5, 0.5]
     assert data["spectral_radius"] == pytest.approx(1.00893, abs=1e-5)
+    # the numbers are those of the library run with the same model and seed
+    with pytest.warns(mdft.UnstableFeedbackWarning):
+        model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+                               beta=12.0, sigma2=1.0)
+    res = mdft.simulate(model, 1000, stopping=mdft.FixedTime(100), rng=0)
+    assert [o["count"] for o in data["options"]] == res.counts.tolist()
+    np.testing.assert_allclose(probs, res.probabilities, rtol=0, atol=0)
+    np.testing.assert_allclose([o["standard_error"] for o in data["options"]],
+                               res.standard_errors, rtol=1e-15)
 
 
 def test_simulate_same_seed_same_output(capsys):
@@ -54,7 +65,12 @@ def test_simulate_threshold_reports_response_times(capsys):
          "--samples", "500", "--seed", "1"],
     )
     assert data["stopping"] == {"rule": "threshold", "theta": 5.0, "max_steps": 500}
-    assert all(o["mean_response_time"] > 0 for o in data["options"])
+    model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+    res = mdft.simulate(model, 500, stopping=mdft.Threshold(5.0, max_steps=500), rng=1)
+    assert [o["count"] for o in data["options"]] == res.counts.tolist()
+    np.testing.assert_allclose([o["mean_response_time"] for o in data["options"]],
+                               res.mean_response_times, rtol=1e-15)
+    assert all(o["mean_response_time"] >= 1 for o in data["options"])
     assert main(["simulate", "--options", "1,3;3,1", "--threshold", "5", "--samples", "200"]) == 0
     assert "mean RT" in capsys.readouterr().out
 
@@ -113,9 +129,15 @@ def test_effects_json(tmp_path, capsys):
                              "--steps", "30", "--trajectories", "0"])
     assert data["stopping"] == {"rule": "fixed_time", "n_steps": 30}
     assert [e["name"] for e in data["effects"]] == ["similarity", "attraction", "compromise"]
-    for e in data["effects"]:
+    expected = mdft.context_effects(stopping=mdft.FixedTime(30), n_samples=1000, rng=3)
+    for e, r in zip(data["effects"], expected):
         assert sum(e["ternary"]) + e["p_undecided"][0] == pytest.approx(1.0)
         assert isinstance(e["shown"], bool)
+        # the same numbers as the library with the same seed
+        np.testing.assert_allclose(e["ternary"], r.ternary, rtol=0, atol=0)
+        np.testing.assert_allclose(e["binary"], r.binary, rtol=0, atol=0)
+        assert e["effect_size"] == pytest.approx(r.effect_size, rel=1e-15)
+        assert e["shown"] == r.shown
     assert out.exists()
 
 
