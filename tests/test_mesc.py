@@ -56,11 +56,13 @@ def test_gradient_matches_finite_differences(p_slip, discount):
     np.testing.assert_allclose(grad, fd, atol=1e-7 + 1e-6 * np.abs(grad).max())
 
 
-def test_objective_is_the_demonstrations_log_likelihood():
-    world = small_world()
+@pytest.mark.parametrize("p_slip,discount", [(0.1, 1.0), (0.2, 0.9)])
+def test_objective_is_the_demonstrations_log_likelihood(p_slip, discount):
+    world = small_world(p_slip, discount)
     demos = generate_demonstrations(world.constrained_mdp, 25, rng=3)
     obj = MESCObjective(world.nominal_mdp, demos, horizon=10)
     w = np.random.default_rng(1).uniform(0.0, 3.0, world.n_features)
+    w_copy = w.copy()
     pol = obj.policy(w)
     ref = soft_value_iteration(world.nominal_mdp.penalised(w), horizon=10).policy
     np.testing.assert_allclose(pol, ref, atol=1e-12)
@@ -68,6 +70,11 @@ def test_objective_is_the_demonstrations_log_likelihood():
     keep = t < 10
     loglik = np.log(pol[t[keep], demos.states[keep], demos.actions[keep]]).sum() / len(demos)
     assert obj(w)[0] == pytest.approx(loglik, rel=1e-12)
+    # evaluating elsewhere changes neither the argument nor a policy handed out before
+    pol_copy = pol.copy()
+    obj(2 * w)
+    np.testing.assert_array_equal(w, w_copy)
+    np.testing.assert_array_equal(pol, pol_copy)
 
 
 def test_deterministic_gradient_is_expected_minus_empirical_counts():
