@@ -67,6 +67,14 @@ def test_scenarios_share_one_binary_baseline(canonical):
 def test_trajectories_are_kept_for_the_ternary_set(canonical):
     traj = canonical["compromise"].trajectories
     assert traj.ndim == 3 and traj.shape[0] == 2 and traj.shape[2] == 3
+    # each recorded trial starts at P0 = 0 and stops the first time a preference reaches 17.5
+    theta = mdft.default_stopping().theta
+    for P in traj:
+        np.testing.assert_array_equal(P[0], 0.0)
+        steps = np.flatnonzero(~np.isnan(P).any(axis=1))
+        t = steps[-1]
+        np.testing.assert_array_equal(steps, np.arange(t + 1))
+        assert t >= 1 and P[t].max() >= theta and np.all(P[:t].max(axis=1) < theta)
 
 
 def test_same_seed_same_result():
