@@ -77,6 +77,11 @@ def test_trajectories_follow_cell_centres(world):
     again = plot_trajectories(new_ax(), world, [[0, 5]], jitter=0.1, rng=0)
     np.testing.assert_array_equal(jittered.lines[0].get_xdata(), again.lines[0].get_xdata())
     assert not np.array_equal(jittered.lines[0].get_xdata(), [0, 1])
+    # one offset per trajectory: the path is shifted, not distorted
+    x, y = (np.asarray(v, float) for v in jittered.lines[0].get_data())
+    dx, dy = x - [0, 1], y - [0, 1]  # cells 0 -> 5 on a 4 x 4 grid: (0, 0) -> (1, 1)
+    assert dx[0] == pytest.approx(dx[1]) and dy[0] == pytest.approx(dy[1])
+    assert max(abs(dx[0]), abs(dy[0])) < 0.5  # normal with sd 0.1: beyond 5 sd never happens at rng=0
 
 
 def test_action_compass_places_each_action_by_its_move():
