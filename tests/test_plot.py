@@ -45,11 +45,24 @@ def test_choice_shares_rejects_negative_n_se(results):
 
 
 def test_trajectories_one_line_per_trial_and_option_plus_threshold():
-    P = np.zeros((4, 30, 3))
+    P = np.random.default_rng(0).normal(size=(4, 30, 3))
     P[1, 10:] = np.nan  # a trial that decided at step 9
     ax = new_axes()
     assert plot_trajectories(ax, P, labels=["A", "B", "C"], threshold=17.5) is ax
     assert len(ax.lines) == 4 * 3 + 1
+    # each trial's preference for each option is drawn once, against the step number, in
+    # one colour per option
+    curves = ax.lines[:-1]
+    colours = {}
+    for k in range(4):
+        for i in range(3):
+            drawn = [ln for ln in curves
+                     if np.array_equal(ln.get_ydata(), P[k, :, i], equal_nan=True)]
+            assert len(drawn) == 1, (k, i)
+            np.testing.assert_array_equal(drawn[0].get_xdata(), np.arange(30))
+            colours.setdefault(i, set()).add(drawn[0].get_color())
+    assert all(len(c) == 1 for c in colours.values()) and len(set.union(*colours.values())) == 3
+    assert list(ax.lines[-1].get_ydata()) == [17.5, 17.5]
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert legend[:3] == ["A", "B", "C"]
     ax2 = plot_trajectories(new_axes(), P)
@@ -90,6 +103,9 @@ def test_context_effects_figure_has_shares_and_trajectories(results):
     assert all(isinstance(ax, Axes) for ax in fig.axes)
     top, bottom = fig.axes[:3], fig.axes[3:]
     assert [len(ax.patches) for ax in top] == [5, 5, 5]
+    for ax, res in zip(top, results):  # the bars are each scenario's own shares
+        np.testing.assert_allclose([p.get_height() for p in ax.patches],
+                                   np.concatenate([res.ternary, res.binary]))
     # 2 trials x 3 options + the threshold line
     assert [len(ax.lines) for ax in bottom] == [7, 7, 7]
 
