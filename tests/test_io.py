@@ -17,10 +17,10 @@ def test_interrupted_save_keeps_the_old_file(tmp_path, monkeypatch):
     before = path.read_bytes()
 
     def interrupted(*args, **kwargs):
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt("interrupted while writing")
 
     monkeypatch.setattr(io.json, "dumps", interrupted)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt, match="interrupted while writing"):
         irl.save_demonstrations(irl.generate_demonstrations(world.constrained_mdp, 5, rng=1), path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["demos.json"]  # no partial file is left

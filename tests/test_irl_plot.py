@@ -132,7 +132,7 @@ def test_bad_input(world):
         plot_trajectories(ax, world, [[0, 16]])
     with pytest.raises(TypeError, match="integer states"):
         plot_trajectories(ax, world, [[0.5, 1.5]])
-    with pytest.raises(ValueError, match="jitter"):
+    with pytest.raises(ValueError, match=r"jitter must be a number >= 0 \(got -1\)"):
         plot_trajectories(ax, world, [[0, 1]], jitter=-1)
     with pytest.raises(ValueError, match="values must have 8 entries"):
         plot_action_values(ax, np.zeros(4))
