@@ -249,7 +249,10 @@ def test_threshold_fit_by_simulation():
     res = fit(data, M, stopping=stop, params=["w"], fixed=params, method="simulation",
               n_samples=4000, n_starts=1, rng=0)
     assert res.engine == "simulation"
-    assert abs(res.params["w"][0] - 0.7) < 0.05
+    # Near w = 0.7, dP(A)/dw[0] is about -1.25 (mdft.threshold_probabilities) and P(A) about
+    # 0.14, so 4000 trials give w a standard error of about 0.0045; the simulated likelihood
+    # (4000 samples) adds as much again: 4 combined standard errors are about 0.025.
+    assert abs(res.params["w"][0] - 0.7) < 0.025
     assert "simulated" in res.se_notes["w"]
 
 
@@ -332,7 +335,8 @@ def test_thesis_time_based_recovery(shared_data):
         res = fit(p.data, p.M, stopping=p.n_steps, params=["w"],
                   fixed={k: v for k, v in p.true_params.items() if k != "w"}, n_starts=2, rng=0)
         assert res.mse < 2e-4
-        assert abs(res.params["w"][0] - p.w[0]) < 0.1
+        se = res.standard_errors["w"][0]
+        assert np.isfinite(se) and abs(res.params["w"][0] - p.w[0]) < 4 * se
 
 
 def test_thesis_conventions_sd_noise(shared_data):
@@ -375,7 +379,9 @@ def test_threshold_fit_exact_two_options():
     res = fit(data, M, stopping=stop, params=["w"], fixed=params, n_starts=1, rng=0,
               threshold_options=dict(n_cells=60))
     assert res.engine == "threshold_exact"
-    assert abs(res.params["w"][0] - 0.65) < 0.02
+    # the data are the model's own probabilities rounded to 1e-4: w comes back to about
+    # that precision, far inside its standard error (0.0026 for 10,000 trials)
+    assert abs(res.params["w"][0] - 0.65) < 1e-3
 
 
 def test_screening_finds_the_better_optimum():
@@ -386,7 +392,8 @@ def test_screening_finds_the_better_optimum():
     p = probabilities(M, [[0, 1, 2]], dict(w=np.array([0.7, 0.3]), **params), 25)[0]
     data = ChoiceData([[0, 1, 2]], [np.round(p * 10_000).astype(int)])
     res = fit(data, M, stopping=25, params=["w"], fixed=params, n_starts=4, rng=0)
-    assert abs(res.params["w"][0] - 0.7) < 0.02
+    # the data are the model's own probabilities rounded to 1e-4: the optimum is w = 0.7
+    assert abs(res.params["w"][0] - 0.7) < 1e-3
 
 
 @settings(deadline=None, max_examples=10)
