@@ -55,7 +55,10 @@ def test_shares_and_measures_are_consistent(canonical):
     for res in canonical:
         np.testing.assert_allclose(res.ternary.sum() + res.p_undecided_ternary, 1.0)
         assert res.n_samples == N_SAMPLES
-        assert res.mean_response_times is not None
+        # threshold stopping: a mean decision step (>= 1) for every option that was chosen
+        rt = res.mean_response_times
+        assert rt.shape == (3,) and np.all(rt[res.ternary > 0] >= 1)
+        assert np.all(np.isnan(rt[res.ternary == 0]))
 
 
 def test_scenarios_share_one_binary_baseline(canonical):
