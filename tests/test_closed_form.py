@@ -118,6 +118,12 @@ def test_bivariate_special_points():
     cov = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 1.5]])
     p = _probabilities_from_moments(np.zeros(3), cov)
     np.testing.assert_allclose(p, orthant_reference(np.zeros(3), cov), atol=1e-12)
+    for i in range(3):
+        L = -np.eye(3)[np.arange(3) != i]
+        L[:, i] = 1.0  # the two differences P_i - P_j
+        D = L @ cov @ L.T
+        rho = D[0, 1] / np.sqrt(D[0, 0] * D[1, 1])
+        assert p[i] == pytest.approx(0.25 + np.arcsin(rho) / (2 * np.pi), abs=1e-12)
     # One comparison with mean exactly zero.
     mean = np.array([0.5, 0.5, -0.1])
     np.testing.assert_allclose(_probabilities_from_moments(mean, cov),
