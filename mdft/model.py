@@ -122,6 +122,13 @@ def feedback_matrix(D, *, phi1: float, phi2: float) -> np.ndarray:
     -----
     ``D`` already holds squared distances, so the exponent is quartic in the
     attribute differences, as in Hotaling's and Busemeyer's code.
+
+    Examples
+    --------
+    >>> D = distance_matrix([[1.0, 3.0], [3.0, 1.0]], beta=12.0)
+    >>> feedback_matrix(D, phi1=0.022, phi2=0.05).round(4)
+    array([[ 0.95  , -0.0122],
+           [-0.0122,  0.95  ]])
     """
     D = as_float_array("D", D, ndim=2)
     phi1 = as_scalar("phi1", phi1, low=0.0)
