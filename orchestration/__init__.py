@@ -4,3 +4,26 @@ Greedy, weighted-average and MDFT orchestrators, rollouts, the paper's
 experiments and the ``mdft`` command line. Uses :mod:`mdft` and :mod:`irl`
 through their public APIs only.
 """
+
+from .preferences import ActionPreferences, action_preferences
+from .orchestrators import (
+    GreedyOrchestrator,
+    MDFTOrchestrator,
+    Orchestrator,
+    WeightedAverageOrchestrator,
+)
+from .rollout import rollout
+from .agent import Episode, OrchestratorAgent, run_episode
+
+__all__ = [
+    "ActionPreferences",
+    "action_preferences",
+    "Orchestrator",
+    "GreedyOrchestrator",
+    "WeightedAverageOrchestrator",
+    "MDFTOrchestrator",
+    "rollout",
+    "Episode",
+    "OrchestratorAgent",
+    "run_episode",
+]
