@@ -14,6 +14,7 @@ from .orchestrators import (
 )
 from .rollout import rollout
 from .agent import Episode, OrchestratorAgent, run_episode
+from .expressiveness import MDFTvsWAInstance, MDFTvsWAResult, mdft_vs_wa, mdft_vs_wa_instance
 
 __all__ = [
     "ActionPreferences",
@@ -26,4 +27,8 @@ __all__ = [
     "Episode",
     "OrchestratorAgent",
     "run_episode",
+    "MDFTvsWAInstance",
+    "MDFTvsWAResult",
+    "mdft_vs_wa_instance",
+    "mdft_vs_wa",
 ]
