@@ -60,6 +60,10 @@ CANONICAL_ON_SQ_SCALE = dict(phi1=0.022 * 6.0**4, phi2=0.05, beta=12.0, sigma2=1
 
 _MAX_SEQUENCES = 1_000_000
 
+#: Margin by which WA's probability of an action must exceed every other's to count as
+#: "strictly most likely" (rounding of the sq's is far below it).
+_MARGIN = 1e-12
+
 
 def _as_distribution(name, value, size=None) -> np.ndarray:
     try:
@@ -143,9 +147,9 @@ def wa_most_likely_interval(sq_n, sq_c, action):
     Returns
     -------
     tuple of float or None
-        ``(low, high)``: the open interval of ``w_n`` in ``[0, 1]`` (closed at an end
-        that is 0 or 1 and attained) where ``p_WA(action) > p_WA(a)`` for every other
-        ``a``; ``None`` when no weights do.
+        ``(low, high)``: the interval of ``w_n`` in ``[0, 1]`` where
+        ``p_WA(action) > p_WA(a) + 1e-12`` for every other ``a`` (open at an end where
+        a condition binds); ``None`` when no weights do.
 
     Notes
     -----
@@ -162,8 +166,8 @@ def wa_most_likely_interval(sq_n, sq_c, action):
     >>> from orchestration.expressiveness import wa_most_likely_interval
     >>> print(wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 1))
     None
-    >>> wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 2)
-    (0.5, 1.0)
+    >>> [round(x, 6) for x in wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 2)]
+    [0.5, 1.0]
     """
     sq_n = _as_distribution("sq_n", sq_n)
     sq_c = _as_distribution("sq_c", sq_c, sq_n.size)
@@ -176,16 +180,16 @@ def wa_most_likely_interval(sq_n, sq_c, action):
         if a == action:
             continue
         dn, dc = sq_n[action] - sq_n[a], sq_c[action] - sq_c[a]
-        slope = dn - dc  # condition: dc + w slope > 0
-        if slope == 0.0:
-            if dc <= 0.0:
+        slope = dn - dc  # condition: dc + w slope > margin
+        if abs(slope) <= _MARGIN:
+            if dc <= _MARGIN:
                 return None
-        elif slope > 0.0:  # w > -dc / slope
-            root = -dc / slope
+        elif slope > 0.0:  # w > (margin - dc) / slope
+            root = (_MARGIN - dc) / slope
             if root > low or (root == low and not low_open):
                 low, low_open = root, True
-        else:  # w < -dc / slope
-            root = -dc / slope
+        else:  # w < (margin - dc) / slope
+            root = (_MARGIN - dc) / slope
             if root < high or (root == high and not high_open):
                 high, high_open = root, True
     if low > high or (low == high and (low_open or high_open)):
