@@ -17,7 +17,6 @@ from orchestration import (
     mdft_vs_wa_instance,
 )
 from orchestration.expressiveness import (
-    CANONICAL_ON_SQ_SCALE,
     PAPER_COMPROMISE_SQ,
     PAPER_SETTINGS,
     compromise_witness,
