@@ -492,7 +492,10 @@ class MDFTOrchestrator(Orchestrator):
             if actions.size == 1:
                 out[rows] = actions[0]
             elif self.threshold is None:
-                M = self._M[states[rows]][:, actions]
+                if actions.size == self.n_actions:
+                    M = self._M[states if rows.size == states.size else states[rows]]
+                else:
+                    M = self._M[states[rows]][:, actions]
                 idx = mdft.decide(M, self._w, phi1=self.phi1, phi2=self.phi2, beta=self.beta,
                                   sigma2=self.sigma2, n_steps=self.n_steps, rng=generator)
                 out[rows] = actions[idx]
