@@ -18,16 +18,6 @@ from orchestration import (
 )
 
 
-@pytest.fixture(scope="module")
-def world():
-    return irl.GridWorld(4, 0, 15, constrained_states=(5, 6), p_slip=0.1)
-
-
-@pytest.fixture(scope="module")
-def prefs(world):
-    return action_preferences(world.nominal_mdp, world.constrained_mdp)
-
-
 def random_prefs(rng, n_states, n_actions, scale=3.0):
     """Preferences from random Q-values (an independent construction of sq)."""
     qn = rng.normal(0, scale, (n_states, n_actions))
@@ -38,22 +28,22 @@ def random_prefs(rng, n_states, n_actions, scale=3.0):
 
 
 # ------------------------------------------------------------------ preferences
-def test_preferences_are_softmax_of_value_iteration(world, prefs):
-    qn = irl.value_iteration(world.nominal_mdp).q_values
-    qc = irl.value_iteration(world.constrained_mdp).q_values
-    np.testing.assert_allclose(prefs.q_nominal, qn)
-    np.testing.assert_allclose(prefs.q_constrained, qc)
-    for q, sq in ((qn, prefs.sq_nominal), (qc, prefs.sq_constrained)):
+def test_preferences_are_softmax_of_value_iteration(small_world, small_prefs):
+    qn = irl.value_iteration(small_world.nominal_mdp).q_values
+    qc = irl.value_iteration(small_world.constrained_mdp).q_values
+    np.testing.assert_allclose(small_prefs.q_nominal, qn)
+    np.testing.assert_allclose(small_prefs.q_constrained, qc)
+    for q, sq in ((qn, small_prefs.sq_nominal), (qc, small_prefs.sq_constrained)):
         ref = np.array([[np.exp(v) / np.exp(row).sum() for v in row] for row in q])
         np.testing.assert_allclose(sq, ref, rtol=1e-12, atol=1e-15)
-    assert prefs.terminal.tolist() == world.nominal_mdp.terminal.tolist()
-    assert prefs.nominal is world.nominal_mdp
+    assert small_prefs.terminal.tolist() == small_world.nominal_mdp.terminal.tolist()
+    assert small_prefs.nominal is small_world.nominal_mdp
 
 
-def test_temperature_and_feasibility(world):
+def test_temperature_and_feasibility(small_world):
     feasible = np.ones((16, 8), bool)
     feasible[:, 4:] = False
-    p = action_preferences(world.nominal_mdp, world.constrained_mdp, temperature=2.0,
+    p = action_preferences(small_world.nominal_mdp, small_world.constrained_mdp, temperature=2.0,
                            feasible=feasible)
     q = p.q_constrained[3, :4] / 2.0
     np.testing.assert_allclose(p.sq_constrained[3, :4], np.exp(q) / np.exp(q).sum())
@@ -63,23 +53,23 @@ def test_temperature_and_feasibility(world):
     assert set(orch.decide_many([3] * 200, rng=0).tolist()) <= {0, 1, 2, 3}
 
 
-def test_preferences_reject_bad_input(world):
+def test_preferences_reject_bad_input(small_world):
     other = irl.GridWorld(3, 0, 8)
     with pytest.raises(TypeError, match=r"nominal must be an irl.MDP \(got str\)"):
-        action_preferences("world", world.constrained_mdp)
+        action_preferences("small_world", small_world.constrained_mdp)
     with pytest.raises(ValueError, match=r"share states and actions \(got 16 states x 8 actions and 9 states"):
-        action_preferences(world.nominal_mdp, other.constrained_mdp)
+        action_preferences(small_world.nominal_mdp, other.constrained_mdp)
     slippier = irl.GridWorld(4, 0, 15, p_slip=0.3).nominal_mdp
     with pytest.raises(ValueError, match="must share transitions and terminal states"):
-        action_preferences(world.nominal_mdp, slippier)
+        action_preferences(small_world.nominal_mdp, slippier)
     with pytest.raises(ValueError, match=r"temperature must be finite and > 0 \(got 0.0\)"):
-        action_preferences(world.nominal_mdp, world.constrained_mdp, temperature=0.0)
+        action_preferences(small_world.nominal_mdp, small_world.constrained_mdp, temperature=0.0)
     bad = np.ones((16, 8), bool)
     bad[2] = False
     with pytest.raises(ValueError, match=r"at least one action in every state \(state 2 has none\)"):
-        action_preferences(world.nominal_mdp, world.constrained_mdp, feasible=bad)
+        action_preferences(small_world.nominal_mdp, small_world.constrained_mdp, feasible=bad)
     with pytest.raises(ValueError, match=r"feasible must have shape \(16, 8\) \(got \(16, 4\)\)"):
-        action_preferences(world.nominal_mdp, world.constrained_mdp, feasible=np.ones((16, 4), bool))
+        action_preferences(small_world.nominal_mdp, small_world.constrained_mdp, feasible=np.ones((16, 4), bool))
 
 
 # ------------------------------------------------------------------ Greedy, WA
@@ -116,8 +106,8 @@ def test_wa_is_the_weighted_average(seed, w):
         np.testing.assert_allclose(wa.action_probabilities(s), expected, rtol=1e-12, atol=1e-15)
 
 
-def test_wa_decisions_follow_its_distribution(prefs):
-    wa = WeightedAverageOrchestrator.from_preferences(prefs, (0.3, 0.7))
+def test_wa_decisions_follow_its_distribution(small_prefs):
+    wa = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.3, 0.7))
     n = 40_000
     choices = wa.decide_many(np.full(n, 1), rng=3)
     freq = np.bincount(choices, minlength=8) / n
@@ -152,8 +142,8 @@ def test_mdft_probabilities_match_a_large_simulation(seed, k, w, conc):
     assert abs(exact.sum() - 1) < 1e-9
 
 
-def test_mdft_act_and_decide_many_follow_action_probabilities(prefs):
-    orch = MDFTOrchestrator.from_preferences(prefs, (0.4, 0.6))
+def test_mdft_act_and_decide_many_follow_action_probabilities(small_prefs):
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.4, 0.6))
     n = 30_000
     p = orch.action_probabilities(0)
     freq = np.bincount(orch.decide_many(np.zeros(n, int), rng=11), minlength=8) / n
@@ -165,9 +155,9 @@ def test_mdft_act_and_decide_many_follow_action_probabilities(prefs):
     assert np.all(np.abs(freq1 - p) <= 4.5 * np.sqrt(p * (1 - p) / 300) + 1e-3)
 
 
-def test_mdft_matches_the_engine_model(prefs):
-    orch = MDFTOrchestrator.from_preferences(prefs, (0.7, 0.3), phi1=0.02, beta=3.0, n_steps=40)
-    actions, M = prefs.attributes(2)
+def test_mdft_matches_the_engine_model(small_prefs):
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.7, 0.3), phi1=0.02, beta=3.0, n_steps=40)
+    actions, M = small_prefs.attributes(2)
     model = orch.model(2)
     np.testing.assert_array_equal(model.M, M)
     assert model.w.tolist() == [0.7, 0.3] and model.phi1 == 0.02 and model.beta == 3.0
@@ -175,13 +165,13 @@ def test_mdft_matches_the_engine_model(prefs):
                                mdft.choice_probabilities(model, 40), atol=1e-12)
 
 
-def test_single_feasible_action_is_chosen_without_deliberation(prefs):
+def test_single_feasible_action_is_chosen_without_deliberation(small_prefs):
     feasible = np.ones((16, 8), bool)
     feasible[4] = False
     feasible[4, 6] = True
-    p = ActionPreferences(q_nominal=prefs.q_nominal, q_constrained=prefs.q_constrained,
-                          sq_nominal=np.where(feasible, prefs.sq_nominal, 0) / np.where(feasible, prefs.sq_nominal, 0).sum(1, keepdims=True),
-                          sq_constrained=np.where(feasible, prefs.sq_constrained, 0) / np.where(feasible, prefs.sq_constrained, 0).sum(1, keepdims=True),
+    p = ActionPreferences(q_nominal=small_prefs.q_nominal, q_constrained=small_prefs.q_constrained,
+                          sq_nominal=np.where(feasible, small_prefs.sq_nominal, 0) / np.where(feasible, small_prefs.sq_nominal, 0).sum(1, keepdims=True),
+                          sq_constrained=np.where(feasible, small_prefs.sq_constrained, 0) / np.where(feasible, small_prefs.sq_constrained, 0).sum(1, keepdims=True),
                           feasible=feasible)
     orch = MDFTOrchestrator.from_preferences(p, (0.5, 0.5))
     assert orch.action_probabilities(4)[6] == 1.0
@@ -213,31 +203,31 @@ def test_mdft_threshold_stopping():
 
 
 # ------------------------------------------------------------------ validation
-def test_orchestrators_reject_bad_input(world, prefs):
-    nom, con = world.nominal_mdp, world.constrained_mdp
+def test_orchestrators_reject_bad_input(small_world, small_prefs):
+    nom, con = small_world.nominal_mdp, small_world.constrained_mdp
     with pytest.raises(ValueError, match=r"weights must sum to 1 \(got \[0.5, 0.6\], sum 1.1\)"):
         WeightedAverageOrchestrator(nom, con, weights=(0.5, 0.6))
     with pytest.raises(ValueError, match=r"weights must be finite and non-negative \(got \[-0.5, 1.5\]\)"):
         MDFTOrchestrator(nom, con, weights=(-0.5, 1.5))
     with pytest.raises(ValueError, match=r"weights must be a pair \(w_n, w_c\) \(got shape \(3,\)"):
-        MDFTOrchestrator.from_preferences(prefs, (0.2, 0.3, 0.5))
+        MDFTOrchestrator.from_preferences(small_prefs, (0.2, 0.3, 0.5))
     with pytest.raises(TypeError, match=r"weights must be a pair of real numbers"):
-        MDFTOrchestrator.from_preferences(prefs, "ab")
+        MDFTOrchestrator.from_preferences(small_prefs, "ab")
     with pytest.raises(ValueError, match=r"phi1 must be finite and >= 0 \(got -1.0\)"):
-        MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5), phi1=-1.0)
+        MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5), phi1=-1.0)
     with pytest.raises(ValueError, match=r"n_steps must be an integer >= 1 \(got 0\)"):
-        MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5), n_steps=0)
+        MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5), n_steps=0)
     with pytest.raises(ValueError, match=r"threshold must be finite and > 0, or None \(got -2\)"):
-        MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5), threshold=-2)
+        MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5), threshold=-2)
     with pytest.raises(TypeError, match=r"prefs must be an orchestration.ActionPreferences \(got MDP\)"):
         GreedyOrchestrator.from_preferences(nom)
     with pytest.raises(ValueError, match=r"temperature=2.0 differs from the temperature of prefs \(1.0\)"):
-        WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5), temperature=2.0)
+        WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5), temperature=2.0)
     with pytest.raises(ValueError, match="must share states and actions"):
         GreedyOrchestrator(nom, irl.GridWorld(3, 0, 8).nominal_mdp)
-    orch = MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5))
-    for o in (orch, GreedyOrchestrator.from_preferences(prefs),
-              WeightedAverageOrchestrator.from_preferences(prefs, (1.0, 0.0))):
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5))
+    for o in (orch, GreedyOrchestrator.from_preferences(small_prefs),
+              WeightedAverageOrchestrator.from_preferences(small_prefs, (1.0, 0.0))):
         with pytest.raises(ValueError, match=r"state must lie in \[0, 16\) \(got 16\)"):
             o.act(16)
         with pytest.raises(TypeError, match=r"state must be an integer state index \(got 1.5\)"):
@@ -250,24 +240,24 @@ def test_orchestrators_reject_bad_input(world, prefs):
             o.decide_many([0, -1])
 
 
-def test_same_seed_same_decisions_and_no_mutation(prefs):
-    before = prefs.sq_nominal.copy()
+def test_same_seed_same_decisions_and_no_mutation(small_prefs):
+    before = small_prefs.sq_nominal.copy()
     states = np.array([0, 1, 2, 3] * 50)
     keep = states.copy()
-    for orch in (MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5)),
-                 WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5))):
+    for orch in (MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5)),
+                 WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5))):
         a = orch.decide_many(states, rng=7)
         b = orch.decide_many(states, rng=7)
         assert a.tolist() == b.tolist()
         assert orch.decide_many(states, rng=8).tolist() != a.tolist()
     np.testing.assert_array_equal(states, keep)
-    np.testing.assert_array_equal(prefs.sq_nominal, before)
+    np.testing.assert_array_equal(small_prefs.sq_nominal, before)
     with pytest.raises(ValueError, match="read-only"):
-        prefs.sq_nominal[0, 0] = 1.0
+        small_prefs.sq_nominal[0, 0] = 1.0
 
 
-def test_policy_stacks_action_probabilities(prefs):
-    wa = WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5))
+def test_policy_stacks_action_probabilities(small_prefs):
+    wa = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5))
     pol = wa.policy()
     assert pol.shape == (16, 8)
     np.testing.assert_allclose(pol[3], wa.action_probabilities(3))

@@ -9,16 +9,13 @@ import pytest  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-import irl  # noqa: E402
 import orchestration  # noqa: E402
 from orchestration.plot import plot_action_probabilities, plot_rollouts  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def setup():
-    world = irl.GridWorld(4, 0, 15, constrained_states=(5, 6))
-    prefs = orchestration.action_preferences(world.nominal_mdp, world.constrained_mdp)
-    return world, prefs
+@pytest.fixture
+def setup(small_world, small_prefs):
+    return small_world, small_prefs
 
 
 def test_rollout_lines_follow_the_trajectories(setup):

@@ -15,34 +15,24 @@ from orchestration import (
 )
 
 
-@pytest.fixture(scope="module")
-def world():
-    return irl.GridWorld(4, 0, 15, constrained_states=(5, 6), p_slip=0.1)
-
-
-@pytest.fixture(scope="module")
-def prefs(world):
-    return action_preferences(world.nominal_mdp, world.constrained_mdp)
-
-
-def test_rollouts_are_valid_trajectories_of_the_world(world, prefs):
-    for orch in (GreedyOrchestrator.from_preferences(prefs),
-                 WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5)),
-                 MDFTOrchestrator.from_preferences(prefs, (0.5, 0.5))):
+def test_rollouts_are_valid_trajectories_of_the_world(small_world, small_prefs):
+    for orch in (GreedyOrchestrator.from_preferences(small_prefs),
+                 WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5)),
+                 MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5))):
         demos = rollout(orch, 100, rng=0)
         assert len(demos) == 100
-        demos.check(world.nominal_mdp)  # every transition has positive probability
+        demos.check(small_world.nominal_mdp)  # every transition has positive probability
         assert demos.reached_terminal.all()
         assert (demos.start_states == 0).all()
         ends = demos.next_states[demos.offsets[1:] - 1]
         assert (ends == 15).all()
         inner = np.ones(demos.n_transitions, bool)
         inner[demos.offsets[1:] - 1] = False
-        assert not world.nominal_mdp.terminal[demos.next_states[inner]].any()
+        assert not small_world.nominal_mdp.terminal[demos.next_states[inner]].any()
 
 
-def test_rollout_is_deterministic_per_seed(prefs):
-    orch = MDFTOrchestrator.from_preferences(prefs, (0.3, 0.7))
+def test_rollout_is_deterministic_per_seed(small_prefs):
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.3, 0.7))
     a, b, c = rollout(orch, 60, rng=4), rollout(orch, 60, rng=4), rollout(orch, 60, rng=5)
     for key in ("offsets", "states", "actions", "next_states"):
         assert getattr(a, key).tolist() == getattr(b, key).tolist()
@@ -50,11 +40,11 @@ def test_rollout_is_deterministic_per_seed(prefs):
 
 
 @pytest.mark.parametrize("kind", ["wa", "mdft"])
-def test_action_frequencies_match_action_probabilities(prefs, kind):
+def test_action_frequencies_match_action_probabilities(small_prefs, kind):
     if kind == "wa":
-        orch = WeightedAverageOrchestrator.from_preferences(prefs, (0.6, 0.4))
+        orch = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.6, 0.4))
     else:
-        orch = MDFTOrchestrator.from_preferences(prefs, (0.6, 0.4))
+        orch = MDFTOrchestrator.from_preferences(small_prefs, (0.6, 0.4))
     demos = rollout(orch, 6000, rng=1)
     visits = np.bincount(demos.states, minlength=16)
     for s in np.argsort(-visits)[:3]:  # the start and the two most visited other states
@@ -67,27 +57,27 @@ def test_action_frequencies_match_action_probabilities(prefs, kind):
         assert np.all(np.abs(freq - p) <= 4.5 * se + 2e-5), (s, freq, p)
 
 
-def test_successor_frequencies_follow_the_transitions(world, prefs):
-    greedy = GreedyOrchestrator.from_preferences(prefs)
+def test_successor_frequencies_follow_the_transitions(small_world, small_prefs):
+    greedy = GreedyOrchestrator.from_preferences(small_prefs)
     with pytest.warns(RuntimeWarning, match="20000 of 20000 trajectories did not reach"):
         demos = rollout(greedy, 20_000, rng=2, max_length=1)
     a = greedy.act(0)
-    P = world.nominal_mdp.dense_transitions()[0, a]
+    P = small_world.nominal_mdp.dense_transitions()[0, a]
     freq = np.bincount(demos.next_states, minlength=16) / 20_000
     se = np.sqrt(P * (1 - P) / 20_000)
     assert np.all(np.abs(freq - P) <= 4.5 * se + 1e-12)
 
 
-def test_max_length_cuts_and_warns(prefs):
-    orch = WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5))
+def test_max_length_cuts_and_warns(small_prefs):
+    orch = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5))
     with pytest.warns(RuntimeWarning, match=r"of 50 trajectories did not reach a terminal state within max_length=2"):
         demos = rollout(orch, 50, rng=0, max_length=2)
     assert demos.lengths.max() <= 2
     assert not demos.reached_terminal[demos.lengths == 2].all() or demos.reached_terminal.all()
 
 
-def test_start_state_and_distribution(prefs):
-    orch = WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5))
+def test_start_state_and_distribution(small_prefs):
+    orch = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5))
     assert (rollout(orch, 20, rng=0, start=5).start_states == 5).all()
     p0 = np.zeros(16)
     p0[[1, 2]] = 0.5
@@ -96,8 +86,8 @@ def test_start_state_and_distribution(prefs):
     assert abs((starts == 1).mean() - 0.5) <= 4.5 * np.sqrt(0.25 / 400)
 
 
-def test_rollout_rejects_bad_input(world, prefs):
-    orch = WeightedAverageOrchestrator.from_preferences(prefs, (0.5, 0.5))
+def test_rollout_rejects_bad_input(small_world, small_prefs):
+    orch = WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5))
     with pytest.raises(TypeError, match=r"orchestrator must be an orchestration.Orchestrator .* \(got str\)"):
         rollout("wa", 10)
     with pytest.raises(ValueError, match=r"n_trajectories must be an integer >= 1 \(got 0\)"):
@@ -110,13 +100,13 @@ def test_rollout_rejects_bad_input(world, prefs):
         rollout(orch, 1, start=[0.5, 0.5])
     with pytest.raises(ValueError, match=r"mdp must have the orchestrator's 16 states and 8 actions \(got 9 and 8\)"):
         rollout(orch, 1, mdp=irl.GridWorld(3, 0, 8).nominal_mdp)
-    bare = type(prefs)(q_nominal=prefs.q_nominal, q_constrained=prefs.q_constrained,
-                       sq_nominal=prefs.sq_nominal, sq_constrained=prefs.sq_constrained,
-                       feasible=prefs.feasible, terminal=prefs.terminal)
+    bare = type(small_prefs)(q_nominal=small_prefs.q_nominal, q_constrained=small_prefs.q_constrained,
+                       sq_nominal=small_prefs.sq_nominal, sq_constrained=small_prefs.sq_constrained,
+                       feasible=small_prefs.feasible, terminal=small_prefs.terminal)
     with pytest.raises(ValueError, match="mdp is required: the orchestrator's preferences hold no nominal MDP"):
         rollout(WeightedAverageOrchestrator.from_preferences(bare, (0.5, 0.5)), 1)
     assert len(rollout(WeightedAverageOrchestrator.from_preferences(bare, (0.5, 0.5)), 3,
-                       mdp=world.nominal_mdp, rng=0)) == 3
+                       mdp=small_world.nominal_mdp, rng=0)) == 3
 
 
 # ------------------------------------------------------------------ agent loop
