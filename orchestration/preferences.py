@@ -70,8 +70,8 @@ class ActionPreferences:
     >>> import irl, orchestration
     >>> world = irl.GridWorld(3, 0, 8, p_slip=0.0, constrained_states=(4,))
     >>> prefs = orchestration.action_preferences(world.nominal_mdp, world.constrained_mdp)
-    >>> prefs.n_states, prefs.n_actions
-    (9, 8)
+    >>> prefs
+    ActionPreferences(n_states=9, n_actions=8, temperature=1, n_terminal=1, nominal=MDP)
     >>> bool(abs(prefs.sq_constrained.sum(axis=1) - 1).max() < 1e-12)
     True
     """
@@ -130,6 +130,11 @@ class ActionPreferences:
         object.__setattr__(self, "feasible", _readonly(feasible))
         object.__setattr__(self, "terminal", _readonly(terminal))
         object.__setattr__(self, "temperature", _as_temperature(self.temperature))
+
+    def __repr__(self):
+        return (f"ActionPreferences(n_states={self.n_states}, n_actions={self.n_actions}, "
+                f"temperature={self.temperature:g}, n_terminal={int(self.terminal.sum())}, "
+                f"nominal={'MDP' if self.nominal is not None else None})")
 
     @property
     def n_states(self) -> int:
