@@ -247,6 +247,13 @@ class CompromiseWitness:
     wa_interval : None
         :func:`wa_most_likely_interval` for the middle action: ``None``, no WA weights
         make it the most likely.
+
+    Examples
+    --------
+    >>> from orchestration.expressiveness import compromise_witness
+    >>> orch = compromise_witness().orchestrator()
+    >>> orch.action_probabilities(0).round(3).tolist()
+    [0.235, 0.457, 0.308]
     """
 
     sq_nominal: np.ndarray
@@ -437,6 +444,13 @@ class MDFTvsWAInstance:
     exact_fit_probabilities : ndarray, shape (n_actions,)
     exact_fit_js_divergence : float
         Its JS divergence: the part of ``js_divergence`` that no amount of data removes.
+
+    Examples
+    --------
+    >>> from orchestration import mdft_vs_wa_instance
+    >>> inst = mdft_vs_wa_instance(3, n_actions=3, n_choices=30, n_steps=10)
+    >>> inst.wa_probabilities.shape, inst.seed
+    ((3,), 3)
     """
 
     seed: int
@@ -560,6 +574,13 @@ class MDFTvsWAResult:
         error over instances.
     mean_exact_js, se_exact_js : float
         The same for the attention fitted to the exact WA distributions.
+
+    Examples
+    --------
+    >>> from orchestration import mdft_vs_wa
+    >>> res = mdft_vs_wa(1, rng=0, n_actions=3, n_choices=30, n_steps=10)
+    >>> res.n_instances, str(res.se_js)
+    (1, 'nan')
     """
 
     instances: tuple
