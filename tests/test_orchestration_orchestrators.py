@@ -269,3 +269,14 @@ def test_public_names():
                  "WeightedAverageOrchestrator", "MDFTOrchestrator", "rollout", "OrchestratorAgent",
                  "run_episode", "mdft_vs_wa_instance", "mdft_vs_wa", "MDFTvsWAInstance"):
         assert name in orchestration.__all__ and hasattr(orchestration, name)
+
+
+def test_orchestrators_pickle_for_process_executors(small_prefs):
+    import pickle
+
+    for orch in (GreedyOrchestrator.from_preferences(small_prefs),
+                 WeightedAverageOrchestrator.from_preferences(small_prefs, (0.5, 0.5)),
+                 MDFTOrchestrator.from_preferences(small_prefs, (0.5, 0.5))):
+        copy = pickle.loads(pickle.dumps(orch))
+        assert copy.decide_many([0, 1, 2] * 10, rng=3).tolist() == orch.decide_many([0, 1, 2] * 10, rng=3).tolist()
+        np.testing.assert_array_equal(copy.action_probabilities(1), orch.action_probabilities(1))
