@@ -100,6 +100,9 @@ def test_rollout_rejects_bad_input(small_world, small_prefs):
         rollout(orch, 1, start=[0.5, 0.5])
     with pytest.raises(ValueError, match=r"mdp must have the orchestrator's 16 states and 8 actions \(got 9 and 8\)"):
         rollout(orch, 1, mdp=irl.GridWorld(3, 0, 8).nominal_mdp)
+    no_goal = small_world.nominal_mdp.replace(terminal=np.zeros(16, bool), start=None)
+    with pytest.raises(ValueError, match="mdp must have the terminal states of the orchestrator's MDPs"):
+        rollout(orch, 1, mdp=no_goal)
     bare = type(small_prefs)(q_nominal=small_prefs.q_nominal, q_constrained=small_prefs.q_constrained,
                        sq_nominal=small_prefs.sq_nominal, sq_constrained=small_prefs.sq_constrained,
                        feasible=small_prefs.feasible, terminal=small_prefs.terminal)
