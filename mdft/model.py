@@ -286,7 +286,7 @@ class MDFTModel:
     phi2 = property(lambda self: self._phi2, doc="Strength of inhibition.")
     beta = property(lambda self: self._beta, doc="Weight of the dominance dimension.")
     spectral_radius = property(
-        lambda self: self._spectral_radius, doc="Spectral radius of S, max |eig(S)|."
+        lambda self: self._spectral_radius, doc="Spectral radius of S, ``max |eig(S)|``."
     )
 
     @property
