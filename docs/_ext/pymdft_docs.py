@@ -2,9 +2,11 @@
 
 API reference
     At ``builder-inited``, for every package named in the ``pymdft_api_packages``
-    setting, the public names of its ``__all__`` are grouped by the module that
-    defines them and written to ``api/<package>.rst`` (summary tables) and
-    ``api/generated/<package>.<name>.rst`` (one page per object, filled by autodoc).
+    setting, the public names of its ``__all__`` (and those of its public
+    submodules' ``__all__`` that it does not re-export, such as ``mdft.plot``) are
+    grouped by the module that defines them and written to ``api/<package>.rst``
+    (summary tables) and ``api/generated/<owner>.<name>.rst`` (one page per object,
+    filled by autodoc).
     The API reference therefore follows ``__all__``: a name added there is on the
     site at the next build, and a name removed disappears. The generated files are
     not committed (``docs/.gitignore``); they are rewritten only when they change.
@@ -13,6 +15,12 @@ Command line
     The ``mdft-cli`` directive prints the help of the ``mdft`` command and of each
     of its subcommands, taken from ``orchestration.cli.build_parser()`` at build
     time, so the reference cannot drift from the program.
+
+Checked cross-references
+    A Python cross-reference written in a page of the guide (``{func}`mdft.simulate```
+    in Markdown) that names no documented object is a warning, hence an error under
+    ``-W``: the links from the equations to the functions cannot rot silently. The
+    generated API pages are not held to this (their type hints name NumPy types).
 """
 
 from __future__ import annotations
@@ -22,12 +30,16 @@ import ast
 import importlib
 import inspect
 import os
+import pkgutil
 from collections import defaultdict
 from pathlib import Path
 
 from docutils import nodes
 from sphinx.pycode import ModuleAnalyzer
+from sphinx.util import logging as sphinx_logging
 from sphinx.util.docutils import SphinxDirective
+
+logger = sphinx_logging.getLogger(__name__)
 
 _WIDTH = "88"  # columns of the generated help text, whatever the terminal
 
@@ -80,9 +92,10 @@ def _title(text: str, char: str) -> str:
     return f"{text}\n{char * len(text)}\n"
 
 
-def _object_page(package: str, name: str, obj, module: str) -> str:
-    full = f"{package}.{name}"
-    head = _title(full, "=") + f"\n.. currentmodule:: {package}\n\n"
+def _object_page(owner: str, name: str, obj, module: str) -> str:
+    """The page of ``owner.name``; ``module`` is where the object is defined."""
+    full = f"{owner}.{name}"
+    head = _title(full, "=") + f"\n.. currentmodule:: {owner}\n\n"
     kind = _kind(obj)
     if kind == "class":
         return head + f".. autoclass:: {name}\n   :members:\n   :show-inheritance:\n"
@@ -100,24 +113,49 @@ def _object_page(package: str, name: str, obj, module: str) -> str:
     return head + f".. data:: {name}\n{option}\n{text}\n"
 
 
-def _package_page(package: str, groups: dict[str, list[str]]) -> str:
+def public_names(module: str) -> list[str]:
+    """``__all__`` of ``module`` (empty when it declares none)."""
+    return list(getattr(importlib.import_module(module), "__all__", []))
+
+
+def public_objects(package: str) -> list[tuple[str, str]]:
+    """Every public name of ``package`` as ``(owner, name)``, documented as ``owner.name``.
+
+    The names of the package's ``__all__`` come first (owner: the package), then the
+    names that a public submodule (no leading underscore) lists in its ``__all__`` but
+    the package does not re-export (owner: the submodule), such as ``mdft.plot``.
+    """
     pkg = importlib.import_module(package)
+    found = [(package, name) for name in public_names(package)]
+    exported = {id(getattr(pkg, name)) for _, name in found}
+    for info in pkgutil.iter_modules(getattr(pkg, "__path__", [])):
+        if info.name.startswith("_"):
+            continue
+        module = f"{package}.{info.name}"
+        mod = importlib.import_module(module)
+        found += [(module, name) for name in public_names(module)
+                  if id(getattr(mod, name)) not in exported]
+    return found
+
+
+def _package_page(package: str, groups: dict[str, list[tuple[str, str]]]) -> str:
     out = [f".. _api-{package}:\n", _title(f"``{package}``", "="),
            f".. automodule:: {package}\n   :no-members:\n",
            f".. currentmodule:: {package}\n"]
     if not groups:
         out.append(f"``{package}`` declares no public names in ``__all__``.\n")
-    for module, names in groups.items():
+    for module, entries in groups.items():
         out.append(_title(f"``{module}``", "-"))
         summary = _first_paragraph(importlib.import_module(module).__doc__)
         if summary and module != package:
             out.append(summary + "\n")
         out.append(".. autosummary::\n   :nosignatures:\n\n"
-                   + "".join(f"   {n}\n" for n in names))
+                   + "".join(f"   ~{owner[len(package) + 1:]}.{name}\n" if owner != package
+                             else f"   {name}\n" for owner, name in entries))
     if groups:
         out.append(".. toctree::\n   :hidden:\n\n" + "".join(
-            f"   generated/{package}.{n}\n" for names in groups.values() for n in names))
-    del pkg
+            f"   generated/{owner}.{name}\n"
+            for entries in groups.values() for owner, name in entries))
     return "\n".join(out)
 
 
@@ -127,24 +165,18 @@ def _write_if_changed(path: Path, text: str) -> None:
         path.write_text(text, encoding="utf-8")
 
 
-def public_names(package: str) -> list[str]:
-    """``__all__`` of ``package`` (empty when it declares none)."""
-    return list(getattr(importlib.import_module(package), "__all__", []))
-
-
 def generate_api_pages(app) -> None:
     api = Path(app.srcdir) / "api"
     generated = api / "generated"
     written = set()
     for package in app.config.pymdft_api_packages:
-        pkg = importlib.import_module(package)
-        groups: dict[str, list[str]] = defaultdict(list)
-        for name in public_names(package):
-            obj = getattr(pkg, name)
+        groups: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        for owner, name in public_objects(package):
+            obj = getattr(importlib.import_module(owner), name)
             module = _defining_module(package, name, obj)
-            groups[module].append(name)
-            page = generated / f"{package}.{name}.rst"
-            _write_if_changed(page, _object_page(package, name, obj, module))
+            groups[module].append((owner, name))
+            page = generated / f"{owner}.{name}.rst"
+            _write_if_changed(page, _object_page(owner, name, obj, module))
             written.add(page)
         _write_if_changed(api / f"{package}.rst", _package_page(package, dict(groups)))
     for stale in generated.glob("*.rst") if generated.exists() else ():
@@ -209,6 +241,18 @@ class _OptionalGlobs:
                        for glob in map(repr, self.app.config.pymdft_optional_globs))
 
 
+_CHECKED_ROLES = {"func", "class", "meth", "attr", "data", "exc", "mod", "obj"}
+
+
+def _warn_unresolved(app, env, node, contnode):
+    """``missing-reference``: warn about an unresolved Python reference in a guide page."""
+    if (node.get("refdomain") == "py" and node.get("reftype") in _CHECKED_ROLES
+            and not node.get("refdoc", "").startswith("api/")):
+        logger.warning("unresolved reference %r: no such documented object",
+                       node.get("reftarget"), location=node)
+    return None
+
+
 def setup(app):
     import logging
 
@@ -217,4 +261,5 @@ def setup(app):
     app.add_config_value("pymdft_api_packages", [], "env")
     app.connect("builder-inited", generate_api_pages)
     app.add_directive("mdft-cli", CommandLineHelp)
+    app.connect("missing-reference", _warn_unresolved)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
