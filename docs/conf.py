@@ -45,6 +45,8 @@ myst_dmath_double_inline = True
 # Autodoc and numpydoc: signatures with their type hints, members listed by
 # autodoc (numpydoc's own member tables are off, they would need stub pages).
 autodoc_typehints = "signature"
+# Show the aliases of mdft._typing and irl._typing by name, not expanded.
+autodoc_type_aliases = {name: name for name in ("ArrayLike", "SeedLike", "PathLike")}
 autodoc_member_order = "bysource"
 autodoc_default_options = {"member-order": "bysource"}
 autosummary_generate = False  # the stub pages come from pymdft_docs

@@ -119,3 +119,10 @@ def test_page_examples_run(page, tmp_path, monkeypatch):
     namespace = {"__name__": f"docs_{Path(page).stem}"}
     for i, block in enumerate(blocks):
         exec(compile(block, f"{page}[block {i}]", "exec"), namespace)
+
+
+def test_signatures_show_type_aliases_by_name(site):
+    page = (site / "api" / "generated" / "mdft.MDFTModel.html").read_text()
+    assert "ArrayLike" in page and "_NestedSequence" not in page
+    for path in (site / "api" / "generated").glob("*.html"):
+        assert "TypeAliasForwardRef" not in path.read_text(), path.name

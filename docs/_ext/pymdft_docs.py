@@ -31,6 +31,7 @@ import importlib
 import inspect
 import os
 import pkgutil
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -241,6 +242,18 @@ class _OptionalGlobs:
                        for glob in map(repr, self.app.config.pymdft_optional_globs))
 
 
+_ALIAS_REPR = re.compile(r"TypeAliasForwardRef\('(\w+)'\)")
+
+
+def _alias_names(app, what, name, obj, options, signature, return_annotation):
+    """``autodoc-process-signature``: show ``ArrayLike | None``, not the repr of Sphinx's
+    placeholder for an alias of ``autodoc_type_aliases`` inside a union."""
+    if signature is None and return_annotation is None:
+        return None
+    fix = (lambda text: text if text is None else _ALIAS_REPR.sub(r"\1", text))
+    return fix(signature), fix(return_annotation)
+
+
 _CHECKED_ROLES = {"func", "class", "meth", "attr", "data", "exc", "mod", "obj"}
 
 
@@ -262,4 +275,5 @@ def setup(app):
     app.connect("builder-inited", generate_api_pages)
     app.add_directive("mdft-cli", CommandLineHelp)
     app.connect("missing-reference", _warn_unresolved)
+    app.connect("autodoc-process-signature", _alias_names)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
