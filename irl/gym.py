@@ -38,7 +38,7 @@ def _import_gymnasium():
     return gymnasium
 
 
-def make_env(env_id: str, **kwargs):
+def make_env(env_id: str, **kwargs: Any) -> Any:
     """Create a Gymnasium environment by id (a thin wrapper that explains a missing install).
 
     Parameters
@@ -139,7 +139,7 @@ def _find_table(env):
     return base, table
 
 
-def transition_table(env, *, start_distribution=None) -> TransitionTable:
+def transition_table(env: Any, *, start_distribution: ArrayLike | None = None) -> TransitionTable:
     """Read the transition table ``P`` of a toy-text environment into padded arrays.
 
     Parameters
