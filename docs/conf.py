@@ -59,7 +59,7 @@ pymdft_api_packages = ["mdft", "irl", "orchestration"]
 
 # A toctree glob that may match nothing yet: the section appears with its first page.
 # Any other empty glob is still an error.
-pymdft_optional_globs = ["experiments/*"]
+pymdft_optional_globs = ["experiments/*", "orchestration*"]
 
 html_theme = "furo"
 html_title = "pymdft"
