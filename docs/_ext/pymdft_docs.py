@@ -96,7 +96,9 @@ def _title(text: str, char: str) -> str:
 def _object_page(owner: str, name: str, obj, module: str) -> str:
     """The page of ``owner.name``; ``module`` is where the object is defined."""
     full = f"{owner}.{name}"
-    head = _title(full, "=") + f"\n.. currentmodule:: {owner}\n\n"
+    # :orphan: the object pages are reached from the summary tables of the package page,
+    # not from the navigation tree, which stays small (and the build fast).
+    head = ":orphan:\n\n" + _title(full, "=") + f"\n.. currentmodule:: {owner}\n\n"
     kind = _kind(obj)
     if kind == "class":
         return head + f".. autoclass:: {name}\n   :members:\n   :show-inheritance:\n"
@@ -153,10 +155,6 @@ def _package_page(package: str, groups: dict[str, list[tuple[str, str]]]) -> str
         out.append(".. autosummary::\n   :nosignatures:\n\n"
                    + "".join(f"   ~{owner[len(package) + 1:]}.{name}\n" if owner != package
                              else f"   {name}\n" for owner, name in entries))
-    if groups:
-        out.append(".. toctree::\n   :hidden:\n\n" + "".join(
-            f"   generated/{owner}.{name}\n"
-            for entries in groups.values() for owner, name in entries))
     return "\n".join(out)
 
 
