@@ -9,6 +9,7 @@ A trajectory is a sequence of transitions ``(s_t, a_t, s_{t+1})``, t = 0..T-1.
 from __future__ import annotations
 
 import warnings
+from typing import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,7 @@ from . import _kernels
 from .mdp import MDP, _as_int
 from .planning import check_policy, soft_value_iteration
 from ._repr import compact_repr
+from ._typing import ArrayLike, SeedLike
 
 __all__ = ["Demonstrations", "sample_trajectories", "generate_demonstrations"]
 
@@ -129,7 +131,7 @@ class Demonstrations:
         """First state of each trajectory, shape (n_trajectories,)."""
         return self.states[self.offsets[:-1]]
 
-    def trajectory(self, i):
+    def trajectory(self, i: int) -> tuple[list[int], list[int]]:
         """``(state_sequence, action_sequence)`` of trajectory ``i`` as lists (T + 1 and T entries)."""
         i = int(i)
         if not 0 <= i < len(self):
@@ -137,7 +139,7 @@ class Demonstrations:
         a, b = self.offsets[i], self.offsets[i + 1]
         return self.states[a:b].tolist() + [int(self.next_states[b - 1])], self.actions[a:b].tolist()
 
-    def subset(self, indices) -> "Demonstrations":
+    def subset(self, indices: ArrayLike) -> "Demonstrations":
         """The trajectories at ``indices`` (in that order).
 
         Examples
@@ -160,7 +162,8 @@ class Demonstrations:
 
     # ------------------------------------------------------- constructors
     @classmethod
-    def from_sequences(cls, state_sequences, action_sequences) -> "Demonstrations":
+    def from_sequences(cls, state_sequences: Sequence[Sequence[int]],
+                       action_sequences: Sequence[Sequence[int]]) -> "Demonstrations":
         """Build from per-trajectory state sequences (T + 1 states) and action sequences (T actions).
 
         This is the format of the paper's ``state_seq`` / ``action_seq`` lists.
@@ -193,7 +196,7 @@ class Demonstrations:
         return {"state_seq": [s for s, _ in seqs], "action_seq": [a for _, a in seqs]}
 
     # ------------------------------------------------------------ checking
-    def check(self, mdp) -> np.ndarray:
+    def check(self, mdp: MDP) -> np.ndarray:
         """Verify the trajectories against ``mdp``; return the successor slot of each transition.
 
         Raises ValueError naming the first trajectory with a state or action out
@@ -241,7 +244,9 @@ class Demonstrations:
         return match.argmax(axis=1)
 
 
-def sample_trajectories(mdp, policy, n, *, rng=None, max_steps=None, start=None):
+def sample_trajectories(mdp: MDP, policy: ArrayLike, n: int, *, rng: SeedLike = None,
+                        max_steps: int | None = None,
+                        start: ArrayLike | None = None) -> Demonstrations:
     """Sample trajectories of a policy in an MDP.
 
     Parameters
@@ -307,7 +312,9 @@ def sample_trajectories(mdp, policy, n, *, rng=None, max_steps=None, start=None)
     return Demonstrations(off, st, ac, ns, reached)
 
 
-def generate_demonstrations(mdp, n, *, rng=None, horizon=None, max_steps=None, max_iter=10_000, tol=1e-10):
+def generate_demonstrations(mdp: MDP, n: int, *, rng: SeedLike = None, horizon: int | None = None,
+                            max_steps: int | None = None, max_iter: int = 10_000,
+                            tol: float = 1e-10) -> Demonstrations:
     """Demonstrations from the soft (maximum causal entropy) policy of ``mdp``, as in the paper.
 
     Parameters

@@ -26,11 +26,13 @@ from __future__ import annotations
 import math
 from dataclasses import KW_ONLY, dataclass, fields
 from functools import cached_property
+from typing import Any, Sequence
 
 import numpy as np
 
 from . import _kernels
 from .mdp import MDP, TransitionFeatures, _as_int, _as_real
+from ._typing import SeedLike
 
 __all__ = ["ACTIONS", "ACTION_MOVES", "COLOURS", "GridWorld"]
 
@@ -186,11 +188,11 @@ class GridWorld:
             + tuple(f"colour {c}" for c in COLOURS)
         )
 
-    def state(self, x, y) -> int:
+    def state(self, x: int, y: int) -> int:
         """State index of cell ``(x, y)``."""
         return int(y) * self.size + int(x)
 
-    def coords(self, s):
+    def coords(self, s: int) -> tuple[int, int]:
         """Cell ``(x, y)`` of state ``s``."""
         return int(s) % self.size, int(s) // self.size
 
@@ -204,7 +206,7 @@ class GridWorld:
         return c
 
     # ------------------------------------------------------------- dynamics
-    def move(self, s, a) -> int:
+    def move(self, s: int, a: int) -> int:
         """The cell reached from ``s`` by executing action ``a`` (no slip)."""
         x, y = self.coords(s)
         dx, dy = ACTION_MOVES[int(a)]
@@ -284,7 +286,7 @@ class GridWorld:
         """The true constrained MDP, rewards ``R_N - true_penalties . phi``."""
         return self.nominal_mdp.penalised(self.true_penalties)
 
-    def replace(self, **changes) -> "GridWorld":
+    def replace(self, **changes: Any) -> "GridWorld":
         """A new world with some fields changed, e.g. ``world.replace(p_slip=0.0)``."""
         kw = {f.name: getattr(self, f.name) for f in fields(self)}
         unknown = set(changes) - set(kw)
@@ -326,17 +328,17 @@ class GridWorld:
     @classmethod
     def random(
         cls,
-        size=9,
+        size: int = 9,
         *,
-        rng=None,
-        n_blue=6,
-        n_green=6,
-        n_constrained_states=6,
-        n_constrained_actions=2,
-        constrained_colours=("blue", "green"),
-        min_distance=8.0,
-        max_tries=1000,
-        **kwargs,
+        rng: SeedLike = None,
+        n_blue: int = 6,
+        n_green: int = 6,
+        n_constrained_states: int = 6,
+        n_constrained_actions: int = 2,
+        constrained_colours: Sequence[int | str] = ("blue", "green"),
+        min_distance: float = 8.0,
+        max_tries: int = 1000,
+        **kwargs: Any,
     ) -> "GridWorld":
         """A random world as in the paper, without duplicate constraints and with a feasible goal.
 
@@ -412,7 +414,7 @@ class GridWorld:
         )
 
     @classmethod
-    def from_dict(cls, entry, **kwargs) -> "GridWorld":
+    def from_dict(cls, entry: dict, **kwargs: Any) -> "GridWorld":
         """A world from one entry of the paper's JSON files (``-50`` marks a true constraint).
 
         Parameters

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from .mdp import MDP, TransitionFeatures
+from ._typing import ArrayLike
 
 __all__ = ["TransitionTable", "transition_table", "from_gymnasium", "make_env"]
 
@@ -36,7 +38,7 @@ def _import_gymnasium():
     return gymnasium
 
 
-def make_env(env_id: str, **kwargs):
+def make_env(env_id: str, **kwargs: Any) -> Any:
     """Create a Gymnasium environment by id (a thin wrapper that explains a missing install).
 
     Parameters
@@ -137,7 +139,7 @@ def _find_table(env):
     return base, table
 
 
-def transition_table(env, *, start_distribution=None) -> TransitionTable:
+def transition_table(env: Any, *, start_distribution: ArrayLike | None = None) -> TransitionTable:
     """Read the transition table ``P`` of a toy-text environment into padded arrays.
 
     Parameters
@@ -302,10 +304,12 @@ def _default_features(n_states: int, n_actions: int) -> TransitionFeatures:
         (np.ones(n_actions), (np.arange(n_actions), n_states + np.arange(n_actions))), shape=(n_actions, n_f)
     )
     names = [f"state {s}" for s in range(n_states)] + [f"action {a}" for a in range(n_actions)]
-    return TransitionFeatures(action=action, destination=destination, names=names)
+    return TransitionFeatures(action=action, destination=destination, names=tuple(names))
 
 
-def from_gymnasium(env, *, discount=1.0, features="default", start_distribution=None) -> MDP:
+def from_gymnasium(env: Any, *, discount: float = 1.0,
+                   features: str | TransitionFeatures | None = "default",
+                   start_distribution: ArrayLike | None = None) -> MDP:
     """Build an :class:`~irl.mdp.MDP` from a toy-text environment's transition table.
 
     Parameters

@@ -12,6 +12,7 @@ import os
 import tempfile
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -19,6 +20,10 @@ import scipy.sparse as sp
 from .demonstrations import Demonstrations
 from .gridworld import GridWorld
 from .mdp import MDP, TransitionFeatures
+from ._typing import PathLike
+
+if TYPE_CHECKING:
+    from .mesc import MESCResult
 
 __all__ = [
     "load_paper_worlds",
@@ -63,7 +68,8 @@ def _packaged(name):
     return resources.files("irl").joinpath("data", name)
 
 
-def load_paper_worlds(name="scobee_example", *, path=None, **world_kwargs):
+def load_paper_worlds(name: str = "scobee_example", *, path: PathLike | None = None,
+                      **world_kwargs: Any) -> list[GridWorld]:
     """The paper's gridworlds as :class:`~irl.GridWorld` objects.
 
     Parameters
@@ -98,7 +104,7 @@ def load_paper_worlds(name="scobee_example", *, path=None, **world_kwargs):
     return [GridWorld.from_dict(e, **world_kwargs) for e in entries]
 
 
-def load_paper_demonstrations(*, path=None):
+def load_paper_demonstrations(*, path: PathLike | None = None) -> list[Demonstrations]:
     """The paper's demonstration sets in the Figure 1 world (10 sets of 100 trajectories).
 
     Parameters
@@ -129,7 +135,7 @@ def load_paper_demonstrations(*, path=None):
 
 
 # ------------------------------------------------------------------ results
-def save_mesc_result(result, path):
+def save_mesc_result(result: MESCResult, path: PathLike) -> None:
     """Write a :class:`~irl.mesc.MESCResult` to JSON (penalties, names and diagnostics).
 
     The MDPs are not written; :func:`load_mesc_result` takes the nominal MDP.
@@ -155,7 +161,7 @@ def save_mesc_result(result, path):
     _write_atomically(path, lambda fh: fh.write(json.dumps(doc, indent=1).encode()))
 
 
-def load_mesc_result(path, nominal):
+def load_mesc_result(path: PathLike, nominal: MDP) -> MESCResult:
     """Read a result written by :func:`save_mesc_result` and rebuild it on ``nominal``.
 
     Raises ValueError when the file's features do not match ``nominal.features``.
@@ -195,7 +201,7 @@ def load_mesc_result(path, nominal):
 
 
 # ---------------------------------------------------------------------- MDPs
-def save_mdp(mdp, path):
+def save_mdp(mdp: MDP, path: PathLike) -> None:
     """Write an MDP (arrays and features) to an NPZ file.
 
     Examples
@@ -225,7 +231,7 @@ def save_mdp(mdp, path):
     _write_atomically(path, lambda fh: np.savez_compressed(fh, **arrays))
 
 
-def load_mdp(path):
+def load_mdp(path: PathLike) -> MDP:
     """Read an MDP written by :func:`save_mdp` (example there); no pickle is involved."""
     with np.load(path, allow_pickle=False) as z:
         feats = None
@@ -244,7 +250,7 @@ def load_mdp(path):
 
 
 # ------------------------------------------------------------ demonstrations
-def save_demonstrations(demonstrations, path):
+def save_demonstrations(demonstrations: Demonstrations, path: PathLike) -> None:
     """Write demonstrations to JSON in the paper's format (``state_seq``, ``action_seq``).
 
     Examples
@@ -264,7 +270,7 @@ def save_demonstrations(demonstrations, path):
     _write_atomically(path, lambda fh: fh.write(json.dumps(doc).encode()))
 
 
-def load_demonstrations(path):
+def load_demonstrations(path: PathLike) -> Demonstrations:
     """Read demonstrations written by :func:`save_demonstrations` (example there)."""
     doc = _read_json(path, "demonstrations")
     d = Demonstrations.from_sequences(doc["state_seq"], doc["action_seq"])

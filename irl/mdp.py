@@ -26,12 +26,14 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from . import _kernels
 from ._repr import compact_repr
+from ._typing import ArrayLike
 
 __all__ = ["MDP", "TransitionFeatures"]
 
@@ -209,11 +211,11 @@ class TransitionFeatures:
         else:
             object.__setattr__(self, "names", tuple(f"f{i}" for i in range(n_f)))
 
-    def check_weights(self, omega, name="omega"):
+    def check_weights(self, omega: ArrayLike, name: str = "omega") -> np.ndarray:
         """Return ``omega`` as a new float array of shape (n_features,), or raise ValueError."""
         return _as_float(name, omega, ndim=1, shape=(self.n_features,))
 
-    def projections(self, omega):
+    def projections(self, omega: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-block weights ``(source @ omega, action @ omega, destination @ omega)``.
 
         Parameters
@@ -235,7 +237,7 @@ class TransitionFeatures:
             for m in (self.source, self.action, self.destination)
         )
 
-    def counts(self, d_src, d_act, d_dst):
+    def counts(self, d_src: ArrayLike, d_act: ArrayLike, d_dst: ArrayLike) -> np.ndarray:
         """Feature counts ``source.T d_src + action.T d_act + destination.T d_dst``, shape (n_features,)."""
         out = np.zeros(self.n_features)
         for mat_t, d in zip(self._transposed, (d_src, d_act, d_dst)):
@@ -250,7 +252,7 @@ class TransitionFeatures:
             None if m.nnz == 0 else sp.csr_array(m.T) for m in (self.source, self.action, self.destination)
         )
 
-    def phi(self, s, a, s_next):
+    def phi(self, s: int, a: int, s_next: int) -> np.ndarray:
         """Dense feature vector phi(s, a, s') of one transition, shape (n_features,)."""
         return (
             self.source[[int(s)], :].toarray()[0]
@@ -258,7 +260,7 @@ class TransitionFeatures:
             + self.destination[[int(s_next)], :].toarray()[0]
         )
 
-    def transition_values(self, omega, next_states):
+    def transition_values(self, omega: ArrayLike, next_states: ArrayLike) -> np.ndarray:
         """``omega . phi(s, a, next_states[s, a, k])`` for every padded transition, shape (S, A, K)."""
         u_src, u_act, u_dst = self.projections(omega)
         ns = np.asarray(next_states)
@@ -405,7 +407,9 @@ class MDP:
 
     # --------------------------------------------------------- constructors
     @classmethod
-    def from_dense(cls, transitions, rewards=None, *, terminal=None, start=None, discount=1.0, features=None):
+    def from_dense(cls, transitions: ArrayLike, rewards: ArrayLike | None = None, *,
+                   terminal: ArrayLike | None = None, start: ArrayLike | None = None,
+                   discount: float = 1.0, features: TransitionFeatures | None = None) -> MDP:
         """Build an MDP from a dense transition tensor ``transitions[s, a, s']``.
 
         Parameters
@@ -451,7 +455,7 @@ class MDP:
         rw = np.where(probs > 0, rw, 0.0)
         return cls(ns, probs, rw, terminal=terminal, start=start, discount=discount, features=features)
 
-    def replace(self, **changes):
+    def replace(self, **changes: Any) -> MDP:
         """A new MDP with some fields replaced (validated again).
 
         Examples
@@ -471,7 +475,7 @@ class MDP:
         kw.update(changes)
         return MDP(**kw)
 
-    def penalised(self, penalties):
+    def penalised(self, penalties: ArrayLike) -> MDP:
         """The MDP with rewards ``R(s, a, s') - penalties . phi(s, a, s')``.
 
         Parameters
@@ -498,21 +502,21 @@ class MDP:
         return self.replace(rewards=self.rewards - values)
 
     # -------------------------------------------------------------- helpers
-    def expected_rewards(self):
+    def expected_rewards(self) -> np.ndarray:
         """Expected reward ``r[s, a] = sum_k probs[s, a, k] rewards[s, a, k]`` (zero at terminals), shape (S, A)."""
         no_penalty = np.zeros(self.n_states)
         return _kernels.penalised_expected_rewards(
             self.next_states, self.probs, self.rewards, self.terminal, no_penalty, np.zeros(self.n_actions), no_penalty
         )
 
-    def dense_transitions(self):
+    def dense_transitions(self) -> np.ndarray:
         """The dense tensor ``P[s, a, s']`` (for small MDPs and tests), shape (S, A, S)."""
         P = np.zeros((self.n_states, self.n_actions, self.n_states))
         s_idx, a_idx, _ = np.indices(self.probs.shape)
         np.add.at(P, (s_idx, a_idx, self.next_states), self.probs)
         return P
 
-    def successor_index(self, s, a, s_next):
+    def successor_index(self, s: int, a: int, s_next: int) -> int:
         """Slot ``k`` with ``next_states[s, a, k] == s_next`` and positive probability, or -1."""
         row = np.flatnonzero((self.next_states[s, a] == s_next) & (self.probs[s, a] > 0))
         return int(row[0]) if row.size else -1

@@ -28,12 +28,17 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 from scipy.special import rel_entr
 
 from ._validation import check_indices, is_flat_set, split_trajectory, trajectory_list
 from .mdp import _as_real
+from ._typing import ArrayLike
+
+if TYPE_CHECKING:
+    from .demonstrations import Demonstrations
 
 __all__ = [
     "HardConstraintScores",
@@ -185,7 +190,8 @@ def _zero_division(value) -> float | None:
     return float(value)
 
 
-def hard_constraint_scores(true, predicted, *, zero_division=None) -> HardConstraintScores:
+def hard_constraint_scores(true: ArrayLike, predicted: ArrayLike, *,
+                           zero_division: float | None = None) -> HardConstraintScores:
     """Score a predicted set of hard constraints against the true set.
 
     Parameters
@@ -243,7 +249,7 @@ def hard_constraint_scores(true, predicted, *, zero_division=None) -> HardConstr
     )
 
 
-def precision(true, predicted, *, zero_division=None) -> float:
+def precision(true: ArrayLike, predicted: ArrayLike, *, zero_division: float | None = None) -> float:
     """Fraction of the predicted constraints that are real, ``TP / (TP + FP)``.
 
     Parameters and conventions as in :func:`hard_constraint_scores`.
@@ -256,7 +262,7 @@ def precision(true, predicted, *, zero_division=None) -> float:
     return hard_constraint_scores(true, predicted, zero_division=zero_division).precision
 
 
-def recall(true, predicted, *, zero_division=None) -> float:
+def recall(true: ArrayLike, predicted: ArrayLike, *, zero_division: float | None = None) -> float:
     """Fraction of the real constraints that were predicted, ``TP / (TP + FN)``.
 
     Parameters and conventions as in :func:`hard_constraint_scores`.
@@ -269,7 +275,8 @@ def recall(true, predicted, *, zero_division=None) -> float:
     return hard_constraint_scores(true, predicted, zero_division=zero_division).recall
 
 
-def false_positive_rate(true, predicted, *, zero_division=None) -> float:
+def false_positive_rate(true: ArrayLike, predicted: ArrayLike, *,
+                        zero_division: float | None = None) -> float:
     """Fraction of the non-constraints predicted to be constraints, ``FP / (FP + TN)``.
 
     Parameters and conventions as in :func:`hard_constraint_scores`. This is
@@ -284,7 +291,8 @@ def false_positive_rate(true, predicted, *, zero_division=None) -> float:
     return hard_constraint_scores(true, predicted, zero_division=zero_division).false_positive_rate
 
 
-def false_discovery_rate(true, predicted, *, zero_division=None) -> float:
+def false_discovery_rate(true: ArrayLike, predicted: ArrayLike, *,
+                         zero_division: float | None = None) -> float:
     """Fraction of the predicted constraints that are wrong, ``FP / (TP + FP)``.
 
     This is what the paper and its code call the "false positive rate"; it
@@ -343,7 +351,8 @@ class SoftConstraintErrors:
     chi: float
 
 
-def soft_constraint_errors(true_cost, zeta_true, zeta_pred, *, chi=0.2) -> SoftConstraintErrors:
+def soft_constraint_errors(true_cost: ArrayLike, zeta_true: ArrayLike, zeta_pred: ArrayLike, *,
+                           chi: float = 0.2) -> SoftConstraintErrors:
     """The paper's false positives and false negatives for soft constraints (Section 3.3).
 
     Parameters
@@ -429,7 +438,7 @@ def _as_distributions(p, q):
     return pa / sp, qa / sq
 
 
-def kl_divergence(p, q) -> float:
+def kl_divergence(p: ArrayLike, q: ArrayLike) -> float:
     """Kullback-Leibler divergence ``KL(p || q) = sum p log(p / q)`` in nats.
 
     Parameters
@@ -457,7 +466,7 @@ def kl_divergence(p, q) -> float:
     return max(value, 0.0)
 
 
-def js_divergence(p, q) -> float:
+def js_divergence(p: ArrayLike, q: ArrayLike) -> float:
     """Jensen-Shannon divergence in nats, ``(KL(p || m) + KL(q || m)) / 2`` with ``m = (p + q) / 2``.
 
     Parameters
@@ -481,7 +490,8 @@ def js_divergence(p, q) -> float:
     return min(max(value, 0.0), float(np.log(2.0)))
 
 
-def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
+def visitation_counts(trajectories: Demonstrations | Sequence[Any], *, n_states: int,
+                      n_actions: int) -> np.ndarray:
     """Count how often each state-action pair occurs in a set of trajectories.
 
     Parameters
@@ -553,7 +563,8 @@ def _smoothed(counts: np.ndarray, pseudocount: float) -> np.ndarray:
 
 
 def visitation_kl_divergence(
-    trajectories_p, trajectories_q, *, n_states, n_actions, pseudocount=0.5
+    trajectories_p: Demonstrations | Sequence[Any], trajectories_q: Demonstrations | Sequence[Any],
+    *, n_states: int, n_actions: int, pseudocount: float = 0.5,
 ) -> float:
     """KL divergence between the state-action visitation frequencies of two trajectory sets.
 
@@ -594,7 +605,8 @@ def visitation_kl_divergence(
 
 
 def visitation_js_divergence(
-    trajectories_p, trajectories_q, *, n_states, n_actions, pseudocount=0.0
+    trajectories_p: Demonstrations | Sequence[Any], trajectories_q: Demonstrations | Sequence[Any],
+    *, n_states: int, n_actions: int, pseudocount: float = 0.0,
 ) -> float:
     """Jensen-Shannon divergence between the state-action visitation frequencies of two sets.
 

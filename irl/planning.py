@@ -29,6 +29,7 @@ import numpy as np
 from . import _kernels
 from .mdp import MDP, _as_float, _as_int, _as_real
 from ._repr import compact_repr
+from ._typing import ArrayLike
 
 __all__ = [
     "PlanningResult",
@@ -136,7 +137,7 @@ def _warn(name, n_iter, tol):
     )
 
 
-def greedy_policy(q_values, *, atol=1e-9):
+def greedy_policy(q_values: ArrayLike, *, atol: float = 1e-9) -> np.ndarray:
     """Uniform distribution over the maximising actions of each row of ``q_values``.
 
     Parameters
@@ -160,7 +161,7 @@ def greedy_policy(q_values, *, atol=1e-9):
     return mask / mask.sum(axis=-1, keepdims=True)
 
 
-def value_iteration(mdp, *, max_iter=10_000, tol=1e-8):
+def value_iteration(mdp: MDP, *, max_iter: int = 10_000, tol: float = 1e-8) -> PlanningResult:
     """Optimal values and Q-values by value iteration.
 
     Parameters
@@ -198,7 +199,8 @@ def value_iteration(mdp, *, max_iter=10_000, tol=1e-8):
     return PlanningResult(v, q, greedy_policy(q), int(n_iter), bool(converged))
 
 
-def soft_value_iteration(mdp, *, horizon=None, max_iter=10_000, tol=1e-8):
+def soft_value_iteration(mdp: MDP, *, horizon: int | None = None, max_iter: int = 10_000,
+                         tol: float = 1e-8) -> SoftPlanningResult:
     """Soft value iteration: the backward pass of maximum causal entropy IRL.
 
     Parameters
@@ -265,7 +267,8 @@ def check_policy(mdp, policy, name="policy"):
     return pol
 
 
-def state_action_visitation(mdp, policy, *, start=None, max_iter=100_000, tol=1e-10):
+def state_action_visitation(mdp: MDP, policy: ArrayLike, *, start: ArrayLike | None = None,
+                            max_iter: int = 100_000, tol: float = 1e-10) -> VisitationResult:
     """Expected discounted state-action visitation of a policy (the forward pass).
 
     Parameters

@@ -11,11 +11,18 @@ with ``y`` growing upwards, so the action "up" points up on the page.
 from __future__ import annotations
 
 import numbers
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from ._validation import trajectory_list
 from .gridworld import ACTION_MOVES, ACTIONS, COLOURS, GridWorld
+from ._typing import ArrayLike, SeedLike
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from .demonstrations import Demonstrations
 
 __all__ = [
     "plot_gridworld",
@@ -75,20 +82,20 @@ def _limits(values, vmin, vmax):
 
 
 def plot_gridworld(
-    ax,
-    world,
+    ax: Axes,
+    world: GridWorld,
     *,
-    values=None,
-    cmap="Reds",
-    vmin=None,
-    vmax=None,
-    colorbar=False,
-    label=None,
-    show_colours=True,
-    show_constraints=True,
-    annotate=False,
-    fmt="{:.2g}",
-):
+    values: ArrayLike | None = None,
+    cmap: Any = "Reds",
+    vmin: float | None = None,
+    vmax: float | None = None,
+    colorbar: bool = False,
+    label: str | None = None,
+    show_colours: bool = True,
+    show_constraints: bool = True,
+    annotate: bool = False,
+    fmt: str = "{:.2g}",
+) -> Axes:
     """Draw a gridworld: coloured cells, start and goal, true constraints and an optional heat map.
 
     Parameters
@@ -197,8 +204,10 @@ def _states_of(traj, index):
     return arr
 
 
-def plot_trajectories(ax, world, trajectories, *, color="tab:red", alpha=None, linewidth=2.0,
-                      jitter=0.0, rng=None, label=None):
+def plot_trajectories(ax: Axes, world: GridWorld, trajectories: Demonstrations | Sequence[Any], *,
+                      color: Any = "tab:red", alpha: float | None = None,
+                      linewidth: float = 2.0, jitter: float = 0.0, rng: SeedLike = None,
+                      label: str | None = None) -> Axes:
     """Overlay trajectories on a gridworld drawn by :func:`plot_gridworld`.
 
     Parameters
@@ -291,8 +300,9 @@ def _label_cells(ax, cells, texts, vals, lo, hi, mask):
             _hatch_cell(ax, x, y)
 
 
-def plot_action_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=None,
-                       annotate=True, fmt="{:.2g}"):
+def plot_action_values(ax: Axes, values: ArrayLike, *, true: ArrayLike | None = None,
+                       cmap: Any = "Reds", vmin: float | None = None, vmax: float | None = None,
+                       annotate: bool = True, fmt: str = "{:.2g}") -> Axes:
     """Draw one value per action as a 3 x 3 compass (each action in the direction it moves).
 
     Parameters
@@ -338,8 +348,9 @@ def plot_action_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=No
     return ax
 
 
-def plot_colour_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=None,
-                       annotate=True, fmt="{:.2g}"):
+def plot_colour_values(ax: Axes, values: ArrayLike, *, true: ArrayLike | None = None,
+                       cmap: Any = "Reds", vmin: float | None = None, vmax: float | None = None,
+                       annotate: bool = True, fmt: str = "{:.2g}") -> Axes:
     """Draw one value per cell colour (none, blue, green) as a row of three cells.
 
     Parameters
@@ -378,8 +389,11 @@ def plot_colour_values(ax, values, *, true=None, cmap="Reds", vmin=None, vmax=No
     return ax
 
 
-def plot_feature_values(axes, world, values, *, trajectories=None, cmap="Reds", vmin=None,
-                        vmax=None, label=None, show_truth=True, trajectory_color="tab:blue"):
+def plot_feature_values(axes: Sequence[Axes], world: GridWorld, values: ArrayLike, *,
+                        trajectories: Demonstrations | Sequence[Any] | None = None,
+                        cmap: Any = "Reds", vmin: float | None = None, vmax: float | None = None,
+                        label: str | None = None, show_truth: bool = True,
+                        trajectory_color: Any = "tab:blue") -> Sequence[Axes]:
     """Draw a value per feature of a gridworld on three axes: states, actions and colours.
 
     Parameters

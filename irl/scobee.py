@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -47,6 +48,8 @@ from ._validation import check_indices, split_trajectory, trajectory_list
 from .mdp import MDP, _as_int, _as_real
 from .planning import soft_value_iteration
 from ._repr import compact_repr
+from ._typing import ArrayLike
+from .demonstrations import Demonstrations
 
 __all__ = ["HardConstraintResult", "infer_hard_constraints"]
 
@@ -270,7 +273,7 @@ class HardConstraintResult:
         """Number of inferred constraints (``len(constraints)``)."""
         return int(self.constraints.size)
 
-    def penalties(self, penalty=_HARD_PENALTY):
+    def penalties(self, penalty: float = _HARD_PENALTY) -> np.ndarray:
         """Penalty vector putting ``penalty`` on each inferred constraint, shape (n_features,).
 
         ``mdp.penalised(result.penalties())`` is the inferred constrained MDP.
@@ -287,7 +290,7 @@ class HardConstraintResult:
         penalty = _as_real("penalty", penalty, low=0.0)
         return np.where(self.mask, penalty, 0.0)
 
-    def policy(self, mdp):
+    def policy(self, mdp: MDP) -> np.ndarray:
         """The inferred model's policy: maximum entropy in ``mdp`` with the constraints imposed.
 
         Parameters
@@ -328,15 +331,15 @@ class HardConstraintResult:
 
 
 def infer_hard_constraints(
-    mdp,
-    demonstrations,
+    mdp: MDP,
+    demonstrations: Demonstrations | Sequence[Any],
     *,
-    horizon=None,
-    candidates=None,
-    min_kl_decrease=0.1,
-    kl_threshold=None,
-    max_constraints=None,
-):
+    horizon: int | None = None,
+    candidates: ArrayLike | None = None,
+    min_kl_decrease: float = 0.1,
+    kl_threshold: float | None = None,
+    max_constraints: int | None = None,
+) -> HardConstraintResult:
     """Greedy maximum-likelihood inference of hard constraints (Scobee & Sastry, 2020).
 
     Parameters

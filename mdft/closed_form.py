@@ -37,6 +37,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import special
 
+from ._typing import SeedLike
 from ._validation import as_count
 from .model import MDFTModel
 
@@ -79,7 +80,7 @@ def _check_model(model) -> None:
         raise TypeError(f"model must be an mdft.MDFTModel (got {type(model).__name__})")
 
 
-def preference_moments(model, n_steps):
+def preference_moments(model: MDFTModel, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean and covariance of the preference state ``P(n_steps)``.
 
     Parameters
@@ -162,7 +163,7 @@ def _moments(S, mu, phi, P0, n_steps):
     return mean, cov
 
 
-def choice_probabilities(model, n_steps):
+def choice_probabilities(model: MDFTModel, n_steps: int) -> np.ndarray:
     """Fixed-time choice probabilities from the normal approximation of ``P(T)``.
 
     Parameters
@@ -564,7 +565,8 @@ class MixtureProbabilities:
     n_sequences: int
 
 
-def mixture_choice_probabilities(model, n_steps, *, n_sequences=20_000, rng=None):
+def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences: int = 20_000,
+                                 rng: SeedLike = None) -> MixtureProbabilities:
     """Fixed-time choice probabilities from the exact mixture-of-normals law of ``P(T)``.
 
     Given the sequence of attended attributes, ``P(T)`` is exactly normal (the noise is

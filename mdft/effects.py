@@ -18,10 +18,11 @@ import dataclasses
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from ._typing import SeedLike
 from ._validation import as_count, as_float_array, as_scalar
 from .closed_form import choice_probabilities
 from .model import MDFTModel, UnstableFeedbackWarning
@@ -207,7 +208,7 @@ class ContextEffect:
         """The MDFT model of the binary baseline (same parameters)."""
         return self.model().subset(list(self.baseline))
 
-    def with_parameters(self, **changes) -> "ContextEffect":
+    def with_parameters(self, **changes: Any) -> "ContextEffect":
         """Return a copy with some fields replaced (e.g. other parameters).
 
         Examples
@@ -373,7 +374,7 @@ class ContextEffects:
         return self.results[key]
 
 
-def default_stopping():
+def default_stopping() -> Threshold:
     """The default stopping rule of :func:`context_effects`: ``Threshold(17.5)``.
 
     The threshold of the canonical parameter set, with at most 10,000
@@ -389,14 +390,14 @@ def default_stopping():
 
 
 def context_effects(
-    scenarios=None,
+    scenarios: str | ContextEffect | Sequence[str | ContextEffect] | None = None,
     *,
-    stopping=None,
+    stopping: FixedTime | Threshold | None = None,
     n_samples: int = 20_000,
     method: str = "monte_carlo",
     criterion: float = 3.0,
     n_trajectories: int = 0,
-    rng=None,
+    rng: SeedLike = None,
 ) -> ContextEffects:
     """Run context-effect scenarios against their binary baselines.
 
@@ -460,7 +461,7 @@ def context_effects(
         n_samples = as_count("n_samples", n_samples, low=1)
         n_trajectories = as_count("n_trajectories", n_trajectories, low=0)
         gen = np.random.default_rng(rng)
-        run = _MonteCarlo(stopping, n_samples, gen)
+        run: _MonteCarlo | _Analytic = _MonteCarlo(stopping, n_samples, gen)
     else:
         if n_trajectories:
             raise ValueError(

@@ -17,9 +17,11 @@ stated once here and in ``docs/concepts.md``:
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import numpy as np
 
+from ._typing import ArrayLike
 from ._validation import as_attention, as_float_array, as_scalar
 
 __all__ = [
@@ -69,7 +71,7 @@ def contrast_matrix(n_options: int) -> np.ndarray:
     return C
 
 
-def distance_matrix(M, *, beta: float) -> np.ndarray:
+def distance_matrix(M: ArrayLike, *, beta: float) -> np.ndarray:
     """Return Hotaling's squared distance between every pair of options.
 
     Parameters
@@ -100,7 +102,7 @@ def distance_matrix(M, *, beta: float) -> np.ndarray:
     return (diff**2).sum(axis=2) + (beta - 1.0) * along
 
 
-def feedback_matrix(D, *, phi1: float, phi2: float) -> np.ndarray:
+def feedback_matrix(D: ArrayLike, *, phi1: float, phi2: float) -> np.ndarray:
     """Return the feedback matrix ``S = I - phi2 * exp(-phi1 * D**2)``.
 
     Parameters
@@ -207,7 +209,8 @@ class MDFTModel:
         "_spectral_radius",
     )
 
-    def __init__(self, M, w, *, phi1, phi2, beta, sigma2=1.0, P0=None):
+    def __init__(self, M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
+                 sigma2: float = 1.0, P0: ArrayLike | None = None) -> None:
         M = as_float_array("M", M, ndim=2)
         _check_option_count(M)
         phi1 = as_scalar("phi1", phi1, low=0.0)
@@ -220,7 +223,8 @@ class MDFTModel:
         self._phi1, self._phi2, self._beta = phi1, phi2, beta
 
     @classmethod
-    def from_matrices(cls, M, w, *, S, C=None, sigma2=1.0, P0=None) -> "MDFTModel":
+    def from_matrices(cls, M: ArrayLike, w: ArrayLike, *, S: ArrayLike, C: ArrayLike | None = None,
+                      sigma2: float = 1.0, P0: ArrayLike | None = None) -> "MDFTModel":
         """Build a model from an explicit feedback matrix ``S`` (and contrast ``C``).
 
         Parameters
@@ -248,8 +252,8 @@ class MDFTModel:
         C = contrast_matrix(n) if standard else as_float_array("C", C, shape=(n, n))
         self = cls.__new__(cls)
         self._init(M, w, C, S, sigma2, P0, standard_contrast=standard)
-        self._D = None
-        self._phi1 = self._phi2 = self._beta = None
+        self._D = None  # type: ignore[assignment]
+        self._phi1 = self._phi2 = self._beta = None  # type: ignore[assignment]
         return self
 
     def _init(self, M, w, C, S, sigma2, P0, *, standard_contrast):
@@ -286,7 +290,7 @@ class MDFTModel:
     phi2 = property(lambda self: self._phi2, doc="Strength of inhibition.")
     beta = property(lambda self: self._beta, doc="Weight of the dominance dimension.")
     spectral_radius = property(
-        lambda self: self._spectral_radius, doc="Spectral radius of S, max |eig(S)|."
+        lambda self: self._spectral_radius, doc="Spectral radius of S, ``max |eig(S)|``."
     )
 
     @property
@@ -325,7 +329,7 @@ class MDFTModel:
         return CM @ psi @ CM.T + self._sigma2 * (self._C @ self._C.T)
 
     # ---------------------------------------------------------------- variants
-    def subset(self, options) -> "MDFTModel":
+    def subset(self, options: ArrayLike) -> "MDFTModel":
         """Return the model restricted to some options, in the given order.
 
         For a parametric model ``C`` and ``S`` are rebuilt for the subset (the
@@ -368,7 +372,7 @@ class MDFTModel:
             P0=self._P0[idx],
         )
 
-    def replace(self, **changes) -> "MDFTModel":
+    def replace(self, **changes: Any) -> "MDFTModel":
         """Return a copy with some of ``M``, ``w``, ``phi1``, ``phi2``, ``beta``,
         ``sigma2``, ``P0`` replaced (parametric models only).
 

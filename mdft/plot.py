@@ -7,7 +7,18 @@ Every function draws on a Matplotlib ``Axes`` given first and returns it;
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Sequence
+
 import numpy as np
+
+from ._typing import ArrayLike
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from .effects import ContextEffects, EffectResult
+    from .simulate import SimulationResult
 
 __all__ = ["plot_choice_shares", "plot_context_effects", "plot_trajectories"]
 
@@ -15,7 +26,8 @@ _TERNARY_COLOR = "tab:blue"
 _BINARY_COLOR = "tab:gray"
 
 
-def plot_choice_shares(ax, result, *, n_se: float = 2.0, title: bool = True):
+def plot_choice_shares(ax: Axes, result: EffectResult, *, n_se: float = 2.0,
+                       title: bool = True) -> Axes:
     """Bar chart of ternary against binary choice shares for one scenario.
 
     Parameters
@@ -78,7 +90,9 @@ def plot_choice_shares(ax, result, *, n_se: float = 2.0, title: bool = True):
     return ax
 
 
-def plot_trajectories(ax, trajectories, *, labels=None, threshold=None, alpha: float = 0.6):
+def plot_trajectories(ax: Axes, trajectories: ArrayLike | SimulationResult, *,
+                      labels: Sequence[str] | None = None, threshold: float | None = None,
+                      alpha: float = 0.6) -> Axes:
     """Preference trajectories ``P(t)`` of a few trials over time.
 
     Parameters
@@ -118,7 +132,7 @@ def plot_trajectories(ax, trajectories, *, labels=None, threshold=None, alpha: f
     if hasattr(trajectories, "trajectories") and hasattr(trajectories, "stopping"):
         if threshold is None:
             threshold = getattr(trajectories.stopping, "theta", None)
-        trajectories = trajectories.trajectories
+        trajectories = trajectories.trajectories  # type: ignore[assignment]
     if trajectories is None:
         raise ValueError(
             "trajectories is None; run the simulation with n_trajectories >= 1 to record some"
@@ -159,7 +173,8 @@ def plot_trajectories(ax, trajectories, *, labels=None, threshold=None, alpha: f
     return ax
 
 
-def plot_context_effects(results, *, fig=None, n_se: float = 2.0):
+def plot_context_effects(results: ContextEffects | Sequence[EffectResult], *,
+                         fig: Figure | None = None, n_se: float = 2.0) -> Figure:
     """The context-effects figure: shares (top row) and trajectories (bottom row).
 
     Parameters

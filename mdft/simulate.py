@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
+from ._typing import ArrayLike, SeedLike
 from ._validation import as_count, as_float_array, as_scalar
 from .model import MDFTModel
 from ._repr import compact_repr
@@ -246,7 +247,8 @@ class SimulationResult:
 
 
 # ---------------------------------------------------------------- simulate
-def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> SimulationResult:
+def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshold,
+             rng: SeedLike = None, n_trajectories: int = 0) -> SimulationResult:
     """Simulate ``n_samples`` independent deliberations of an MDFT model.
 
     Parameters
@@ -431,7 +433,8 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
 
 
 # ---------------------------------------------------------------- decide
-def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
+def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
+           sigma2: float = 1.0, n_steps: int, rng: SeedLike = None) -> int | np.ndarray:
     """One fixed-time MDFT deliberation per decision, the model built inside the kernel.
 
     The fast path for agents that choose among options at every step: no
