@@ -1,0 +1,42 @@
+"""Small summaries shared by the experiments: means with standard errors, table cells."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def mean_se(values):
+    """Mean and standard error of the finite values (NaN, NaN if there are none).
+
+    Examples
+    --------
+    >>> mean_se([1.0, 2.0, 3.0])
+    (2.0, 0.5773502691896258)
+    >>> mean_se([4.0])
+    (4.0, nan)
+    """
+    x = np.asarray([v for v in values if v is not None], dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan")
+    se = float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else float("nan")
+    return float(x.mean()), se
+
+
+def cell(mean, se=None, digits=3) -> str:
+    """``"0.123 ± 0.004"`` (or ``"-"`` where the mean is not finite).
+
+    Examples
+    --------
+    >>> cell(0.12345, 0.0042)
+    '0.123 ± 0.004'
+    >>> cell(float("nan"))
+    '-'
+    """
+    if mean is None or not math.isfinite(mean):
+        return "-"
+    if se is None or not math.isfinite(se):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} ± {se:.{digits}f}"
