@@ -1,8 +1,9 @@
-"""Small summaries shared by the experiments: means with standard errors, table cells."""
+"""Helpers shared by the experiments: means with standard errors, table cells, soft trajectories."""
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -40,3 +41,16 @@ def cell(mean, se=None, digits=3) -> str:
     if se is None or not math.isfinite(se):
         return f"{mean:.{digits}f}"
     return f"{mean:.{digits}f} ± {se:.{digits}f}"
+
+
+def soft_trajectories(mdp, n, rng):
+    """``n`` trajectories of the soft (maximum causal entropy) policy of ``mdp``.
+
+    A trajectory cut at the step limit is kept (it still counts in the
+    visitation metrics); the warning about it is not shown.
+    """
+    import irl
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return irl.generate_demonstrations(mdp, n, rng=rng)

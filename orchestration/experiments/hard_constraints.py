@@ -27,6 +27,7 @@ import numpy as np
 
 from . import _stats
 from .base import Experiment, Report
+from ._stats import soft_trajectories
 from .runner import Unit, child_seed
 
 #: Penalty standing in for a hard constraint (exp(-1e4) is 0 in double precision).
@@ -66,14 +67,6 @@ def _kl(demos, mdp, trajectories):
                                         n_actions=mdp.n_actions)
 
 
-def _soft_trajectories(mdp, n, rng):
-    import irl
-
-    with warnings.catch_warnings():  # a rare cut trajectory is kept and still counts
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return irl.generate_demonstrations(mdp, n, rng=rng)
-
-
 def _scores(true_mask, predicted):
     import irl
 
@@ -88,25 +81,25 @@ def work(params: dict, seed) -> dict:
 
     world = _world(params["world"])
     nominal, true_mask = world.nominal_mdp, world.constraint_mask
-    all_demos = _soft_trajectories(world.constrained_mdp, params["n_max"], child_seed(seed, 0))
+    all_demos = soft_trajectories(world.constrained_mdp, params["n_max"], child_seed(seed, 0))
     demos = all_demos.subset(np.arange(params["n"]))
     rng = np.random.default_rng(child_seed(seed, 1, params["n"]))
     m = params["n_model_trajectories"]
 
     mesc = irl.mesc_irl(nominal, demos)
-    out = {"mesc": {}, "mesc_soft_kl": _kl(demos, nominal, _soft_trajectories(mesc.constrained, m, rng))}
+    out = {"mesc": {}, "mesc_soft_kl": _kl(demos, nominal, soft_trajectories(mesc.constrained, m, rng))}
     for level in params["zeta_levels"]:
         mask = mesc.zeta >= level
         model = nominal.penalised(np.where(mask, HARD_PENALTY, 0.0))
         out["mesc"][f"{level:g}"] = {**_scores(true_mask, mask),
-                                      "kl": _kl(demos, nominal, _soft_trajectories(model, m, rng))}
+                                      "kl": _kl(demos, nominal, soft_trajectories(model, m, rng))}
     hard = irl.infer_hard_constraints(nominal, demos)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         traj = irl.sample_trajectories(nominal, hard.policy(nominal), m, rng=rng,
                                        max_steps=hard.horizon)
     out["scobee"] = {**_scores(true_mask, hard.mask), "kl": _kl(demos, nominal, traj)}
-    out["true_kl"] = _kl(demos, nominal, _soft_trajectories(world.constrained_mdp, m, rng))
+    out["true_kl"] = _kl(demos, nominal, soft_trajectories(world.constrained_mdp, m, rng))
     out["mesc_converged"] = bool(mesc.converged)
     return out
 

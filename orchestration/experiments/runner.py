@@ -402,11 +402,12 @@ def local_executor(workers: int):
 
 
 @contextlib.contextmanager
-def dask_executor(address: str):
+def dask_executor(address: str, *, timeout="10s"):
     """An executor on the Dask distributed cluster whose scheduler is at ``address``.
 
     Needs the optional extra ``dask`` (``pip install "pymdft[dask]"``) here and
-    pymdft installed on the workers. ``address`` is e.g. ``tcp://host:8786``.
+    pymdft installed on the workers. ``address`` is e.g. ``tcp://host:8786``;
+    ``timeout`` is how long to wait for the scheduler to answer.
 
     Raises
     ------
@@ -422,7 +423,7 @@ def dask_executor(address: str):
             "running on a Dask cluster needs the optional extra: pip install 'pymdft[dask]'"
         ) from None
     try:
-        client = Client(address, timeout="10s")
+        client = Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as exc:
         raise OSError(f"no Dask scheduler answered at {address!r} ({exc})") from None
     try:
