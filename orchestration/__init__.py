@@ -4,3 +4,31 @@ Greedy, weighted-average and MDFT orchestrators, rollouts, the paper's
 experiments and the ``mdft`` command line. Uses :mod:`mdft` and :mod:`irl`
 through their public APIs only.
 """
+
+from .preferences import ActionPreferences, action_preferences
+from .orchestrators import (
+    GreedyOrchestrator,
+    MDFTOrchestrator,
+    Orchestrator,
+    WeightedAverageOrchestrator,
+)
+from .rollout import rollout
+from .agent import Episode, OrchestratorAgent, run_episode
+from .expressiveness import MDFTvsWAInstance, MDFTvsWAResult, mdft_vs_wa, mdft_vs_wa_instance
+
+__all__ = [
+    "ActionPreferences",
+    "action_preferences",
+    "Orchestrator",
+    "GreedyOrchestrator",
+    "WeightedAverageOrchestrator",
+    "MDFTOrchestrator",
+    "rollout",
+    "Episode",
+    "OrchestratorAgent",
+    "run_episode",
+    "MDFTvsWAInstance",
+    "MDFTvsWAResult",
+    "mdft_vs_wa_instance",
+    "mdft_vs_wa",
+]
