@@ -26,6 +26,27 @@ def mean_se(values):
     return float(x.mean()), se
 
 
+def ratio_se(numerators, denominators):
+    """Ratio of means ``mean(a) / mean(b)`` over paired values and its delta-method standard error.
+
+    ``se = sd(a - r b) / (sqrt(n) |mean(b)|)``; NaN where ``mean(b)`` is 0.
+
+    Examples
+    --------
+    >>> r, se = ratio_se([2.0, 4.0, 6.0], [1.0, 2.0, 3.0])
+    >>> r, se
+    (2.0, 0.0)
+    """
+    a = np.asarray(numerators, dtype=float)
+    b = np.asarray(denominators, dtype=float)
+    if a.size == 0 or b.mean() == 0:
+        return float("nan"), float("nan")
+    r = float(a.mean() / b.mean())
+    if a.size < 2:
+        return r, float("nan")
+    return r, float(np.std(a - r * b, ddof=1) / (math.sqrt(a.size) * abs(b.mean())))
+
+
 def cell(mean, se=None, digits=3) -> str:
     """``"0.123 ± 0.004"`` (or ``"-"`` where the mean is not finite).
 
