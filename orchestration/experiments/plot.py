@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_curves", "plot_weight_sweep", "new_figure"]
+__all__ = ["new_figure", "plot_curves", "plot_histograms", "plot_scatter", "plot_weight_sweep"]
 
 
 def new_figure(n_panels: int, *, width=4.0, height=3.2, ncols=None):
@@ -109,4 +109,43 @@ def plot_weight_sweep(ax, w_c, curves, *, baselines=None, ylabel="", title=""):
         if value is not None and np.isfinite(value):
             ax.axhline(value, color="grey", linestyle=next(styles), linewidth=1, label=label)
     ax.legend(fontsize="small")
+    return ax
+
+
+def plot_histograms(ax, samples, *, xlabel="", bins=20):
+    """Overlaid histograms, one per entry of ``samples`` (``label -> values``), on shared bins.
+
+    Examples
+    --------
+    >>> fig, (ax,) = new_figure(1)
+    >>> ax = plot_histograms(ax, {"a": [0.1, 0.2, 0.2], "b": [0.3]})
+    >>> len(ax.patches) > 0
+    True
+    """
+    values = [np.asarray(v, dtype=float) for v in samples.values()]
+    edges = np.histogram_bin_edges(np.concatenate(values), bins=bins)
+    for label, v in zip(samples, values):
+        ax.hist(v, bins=edges, alpha=0.5, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("count")
+    ax.legend(fontsize="x-small")
+    return ax
+
+
+def plot_scatter(ax, x, y, *, xlabel="", ylabel="", diagonal=False):
+    """A scatter plot of ``y`` against ``x``, with the line y = x if ``diagonal``.
+
+    Examples
+    --------
+    >>> fig, (ax,) = new_figure(1)
+    >>> ax = plot_scatter(ax, [0, 1], [0, 1], diagonal=True)
+    >>> len(ax.lines)
+    1
+    """
+    ax.scatter(x, y, s=10)
+    if diagonal:
+        ax.plot([0, 1], [0, 1], color="grey", linewidth=1, linestyle="--")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
     return ax
