@@ -353,13 +353,19 @@ def run_units(work: Callable, units, folder, *, seed: int, identity: Mapping | N
 
 # ----------------------------------------------------------------------------- executors
 def _worker_init():
-    """In each local worker: leave Ctrl-C to the parent and use one numba thread."""
+    """In each local worker: leave Ctrl-C to the parent, use one numba and one BLAS thread."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         import numba
 
         numba.set_num_threads(1)
     except (ImportError, ValueError):  # pragma: no cover
+        pass
+    try:  # BLAS threads spinning on tiny matrices slow the optimisers down on a busy machine
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+    except ImportError:  # pragma: no cover - threadpoolctl is optional
         pass
 
 
@@ -369,8 +375,8 @@ def local_executor(workers: int):
 
     Workers are started with the ``spawn`` method: a fresh interpreter each,
     which is safe with numba's and OpenMP's threads (``fork`` is not). Each
-    worker uses one numba thread, so the workers do not oversubscribe the
-    cores. On leaving the block (also on Ctrl-C) pending units are cancelled
+    worker uses one numba thread (and one BLAS thread where threadpoolctl is
+    installed), so the workers do not oversubscribe the cores. On leaving the block (also on Ctrl-C) pending units are cancelled
     and the workers are stopped.
 
     Examples
