@@ -203,3 +203,18 @@ def test_unknown_settings_are_refused(tmp_path):
         reproduce("transfer", tmp_path, settings={"colour": 1})
     with pytest.raises(ValueError, match="experiment must be one of"):
         reproduce("figure-9", tmp_path)
+
+
+def test_the_runner_page_examples_run(tmp_path, monkeypatch):
+    """The ```python blocks of docs/experiments/runner.md run as a user would paste them."""
+    import re
+
+    pytest.importorskip("distributed")
+    text = (ROOT / "docs" / "experiments" / "runner.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", text, re.S | re.M)
+    assert len(blocks) == 2
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for i, block in enumerate(blocks):
+        exec(compile(block, f"runner.md[block {i}]", "exec"), namespace)
+        assert namespace["report"].files
