@@ -217,14 +217,21 @@ def main(argv=None) -> int:
 
 
 # ----------------------------------------------------------------------------- argument types
+def _number(text, cast, noun, valid, range_noun, show_text=False):
+    """``cast(text)``, or an ArgumentTypeError naming what was expected."""
+    try:
+        value = cast(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+    if not valid(value):
+        shown = repr(text) if show_text else value
+        raise argparse.ArgumentTypeError(f"expected {range_noun}, got {shown}")
+    return value
+
+
 def positive_int(text: str, *, high: int | None = None) -> int:
     """argparse type: an integer >= 1 (and <= ``high``)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    value = _number(text, int, "a positive integer", lambda v: v >= 1, "a positive integer")
     if high is not None and value > high:
         raise argparse.ArgumentTypeError(f"expected an integer <= {high:,}, got {value:,}")
     return value
@@ -242,35 +249,18 @@ def bounded_int(high: int) -> Callable:
 
 def non_negative_int(text: str) -> int:
     """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    return _number(text, int, "an integer >= 0", lambda v: v >= 0, "an integer >= 0")
 
 
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a finite positive number, got {text!r}")
-    return value
+    return _number(text, float, "a positive number", lambda v: math.isfinite(v) and v > 0,
+                   "a finite positive number", show_text=True)
 
 
 def real(text: str) -> float:
     """argparse type: a finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+    return _number(text, float, "a number", math.isfinite, "a finite number", show_text=True)
 
 
 SEED_ARG = arg(
