@@ -189,8 +189,12 @@ def summarise(s: dict, results: dict) -> Report:
             "share_worlds_length_p_le_0.01": float(np.mean([w["ks"][k]["length_p"] <= 0.01 for w in worlds])),
             "share_worlds_penalty_p_le_0.01": float(np.mean([w["ks"][k]["penalty_p"] <= 0.01 for w in worlds])),
         })
-    better = {m: sum(table[f"mdft-{k}"][m][0] < table[f"wa-{k}"][m][0] for k in range(len(ws)))
-              for m, _ in METRICS}
+    # paired over worlds: MDFT minus WA at each weight (penalty in learned-penalty units)
+    paired = {m: [_stats.mean_se(np.subtract(per_world(f"mdft-{k}", m), per_world(f"wa-{k}", m)))
+                  for k in range(len(ws))] for m, _ in METRICS}
+    better = {m: sum(d[0] < 0 for d in paired[m]) for m in paired}
+    clearly = {m: sum(d[0] + 2 * d[1] < 0 for d in paired[m]) for m in paired}
+    clearly_worse = {m: sum(d[0] - 2 * d[1] > 0 for d in paired[m]) for m in paired}
 
     def row(label, w_c, entry, ks_entry=None):
         cells = [_stats.cell(*entry[m], digits=3) for m, _ in METRICS]
@@ -208,15 +212,18 @@ def summarise(s: dict, results: dict) -> Report:
         "standard errors across worlds. Penalty: learned penalties, ratio of means to the "
         "Constrained policy's. KS p: two-sample test of WA vs MDFT trajectory lengths pooled over "
         "worlds.",
-        "MDFT below WA at " + ", ".join(f"{better[m]} of {len(ws)} weights on {label}"
-                                        for m, label in METRICS) + ".",
+        "MDFT below WA (paired over worlds; in brackets: by more than two standard errors / "
+        "above WA by more than two) at " + ", ".join(
+            f"{better[m]} of {len(ws)} weights on {label} ({clearly[m]} / {clearly_worse[m]})"
+            for m, label in METRICS) + ".",
         f"True constrained optimum: {np.mean([w['true_violations'] for w in worlds]):.3f} "
         "violations per trajectory.",
     ]
     if n_unconv:
         notes.append(f"MESC-IRL did not converge in {n_unconv} of {len(worlds)} worlds.")
-    data = {"weights_w_c": ws, "methods": table, "ks": ks, "mdft_better_at": better,
-            "mesc_unconverged": n_unconv}
+    data = {"weights_w_c": ws, "methods": table, "ks": ks, "mdft_minus_wa": paired,
+            "mdft_below_wa_at": better, "mdft_below_wa_by_2se_at": clearly,
+            "mdft_above_wa_by_2se_at": clearly_worse, "mesc_unconverged": n_unconv}
     return Report(
         "orchestrators", "Orchestrators: Greedy, WA and MDFT on learned constraints",
         ("method", "w_c", "length/shortest", "penalty/constr.", "violations", "JS to optimum",
