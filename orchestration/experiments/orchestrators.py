@@ -198,7 +198,8 @@ def summarise(s: dict, results: dict) -> Report:
 
     def row(label, w_c, entry, ks_entry=None):
         cells = [_stats.cell(*entry[m], digits=3) for m, _ in METRICS]
-        ks_cell = "" if ks_entry is None else f"{ks_entry['pooled_length_p']:.2g}"
+        p = None if ks_entry is None else ks_entry["pooled_length_p"]
+        ks_cell = "" if p is None else (f"{p:.2g}" if p >= 1e-300 else "< 1e-300")
         return (label, w_c, *cells, _stats.cell(*entry["reached"], digits=3), ks_cell)
 
     rows = [row(name.capitalize(), "", table[name]) for name in FIXED]
