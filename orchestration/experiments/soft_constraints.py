@@ -101,8 +101,9 @@ def summarise(s: dict, results: dict) -> Report:
     n_unconv = sum(not r["converged"] for r in results.values())
     notes = [f"Means ± standard errors over {s['n_repeats']} random worlds; fn and fp at "
              f"chi = {best}, divided by the number of candidate features (the paper's "
-             "definition); 'JS true' is the divergence of fresh trajectories of the true "
-             "constrained world, the floor set by sampling."]
+             "definition); 'JS true': fresh trajectories of the true constrained world, the "
+             "divergence of an exactly right model; below it a model reproduces the "
+             "demonstrations themselves rather than the world."]
     if n_unconv:
         notes.append(f"MESC-IRL did not converge in {n_unconv} of {len(results)} fits.")
     data = {"n_demonstrations": ns, "curves": curves, "mesc_unconverged": n_unconv}
@@ -128,7 +129,7 @@ def _figure(s, curves):
                         xlabel="number of demonstrations", ylabel=label, logx=True,
                         title=kind, legend=key == "fn")
         plot_curves(a_js, ns, {"learned model": tuple(np.array(c["js"]).T),
-                               "true world (floor)": tuple(np.array(c["js_true"]).T)},
+                               "true world, fresh": tuple(np.array(c["js_true"]).T)},
                     xlabel="number of demonstrations", ylabel="JS(demonstrations, model)",
                     logx=True, title=kind)
     return fig
