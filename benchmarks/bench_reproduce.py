@@ -2,8 +2,10 @@
 
 Each experiment runs as its own ``python -m orchestration reproduce NAME`` process
 in a fresh output folder (nothing to resume), with ``--workers`` local processes;
-the sum of the times is what ``mdft reproduce all`` takes. The load average is
-printed before and after: on a shared machine the figures are pessimistic.
+the sum of the times is what ``mdft reproduce all`` takes. Also printed: the CPU
+time of the process and its workers (user + system), which depends little on
+what else runs on the machine, and the load average before and after: on a
+shared machine the wall times are pessimistic.
 
 Targets (2-core machine): ``orchestrators`` at most 5 minutes, ``all`` at most 20.
 
@@ -13,6 +15,7 @@ Run: ``python benchmarks/bench_reproduce.py [--quick] [--workers 2] [--out DIR] 
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -38,13 +41,18 @@ def main():
         cmd = [sys.executable, "-m", "orchestration", "reproduce", name, "--out", str(out / name),
                "--workers", str(args.workers), "--quiet"] + (["--quick"] if args.quick else [])
         t0 = time.perf_counter()
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
         wall = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         if proc.returncode != 0:
             sys.exit(f"{name} failed:\n{proc.stderr}")
-        rows.append((name, wall, os.getloadavg()[0]))
-        print(f"{name:18s} {wall:8.1f} s   (1-min load average after: {rows[-1][2]:.1f})", flush=True)
-    print(f"{'total (all)':18s} {sum(r[1] for r in rows):8.1f} s")
+        rows.append((name, wall, cpu, os.getloadavg()[0]))
+        print(f"{name:18s} wall {wall:8.1f} s   CPU {cpu:8.1f} s   "
+              f"(1-min load average after: {rows[-1][3]:.1f})", flush=True)
+    print(f"{'total (all)':18s} wall {sum(r[1] for r in rows):8.1f} s   "
+          f"CPU {sum(r[2] for r in rows):8.1f} s")
     print(f"load average after: {os.getloadavg()}")
 
 

@@ -100,12 +100,12 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path):
 
 
 def test_a_killed_run_loses_no_finished_unit_and_resumes(tmp_path):
-    units = [Unit(f"u{k:02d}", {"n": 3, "k": k, "sleep": 0.3}, (k,)) for k in range(12)]
+    units = [Unit(f"u{k:02d}", {"n": 3, "k": k, "sleep": 0.4}, (k,)) for k in range(16)]
     script = (
         "import sys; sys.path.insert(0, %r)\n"
         "from orchestration.experiments import Unit, run_units\n"
         "from tests._runner_work import slow_noisy_sum\n"
-        "units = [Unit(f'u{k:02d}', {'n': 3, 'k': k, 'sleep': 0.3}, (k,)) for k in range(12)]\n"
+        "units = [Unit(f'u{k:02d}', {'n': 3, 'k': k, 'sleep': 0.4}, (k,)) for k in range(16)]\n"
         "run_units(slow_noisy_sum, units, %r, seed=11)\n" % (str(ROOT), str(tmp_path / "a"))
     )
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT)
@@ -118,7 +118,7 @@ def test_a_killed_run_loses_no_finished_unit_and_resumes(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     done = sorted(unit_dir.glob("u*.json"))
-    assert 3 <= len(done) < 12
+    assert 3 <= len(done) < 16
     for path in done:  # every saved unit is complete JSON
         json.loads(path.read_text())
     resumed = run_units(slow_noisy_sum, units, tmp_path / "a", seed=11)
