@@ -1,230 +1,54 @@
-"""The ``mdft`` command line.
+"""Commands of the MDFT engine: ``mdft simulate`` and ``mdft effects``.
 
-Commands::
-
-    mdft simulate   simulate an MDFT model given inline or in a JSON file
-    mdft effects    the similarity, attraction and compromise effects: table and figure
-
-Each command is one function decorated with :func:`subcommand`, which declares
-its name, help text and arguments; :func:`build_parser` turns the registry
-into argparse sub-parsers. Adding a command is adding one such function.
-
-User errors (bad options, unreadable files, invalid models) are reported by
-argparse on stderr with exit code 2, without a traceback. This is the only
-module of the project that prints.
+Thin layers over :func:`mdft.simulate` and :func:`mdft.context_effects`: parse
+and check the arguments, call the library, print a table or JSON, write figures.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import os
 import sys
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-__all__ = ["UsageError", "build_parser", "main", "subcommand"]
+from ._core import (
+    MAX_SAMPLES,
+    MAX_STEPS,
+    SEED_ARG,
+    UsageError,
+    arg,
+    bounded_int,
+    finite_or_none,
+    non_negative_int,
+    positive_float,
+    real,
+    seed_of,
+    subcommand,
+    table,
+)
 
 #: Defaults of ``mdft simulate`` for parameters not given: the canonical set
 #: of Hotaling, Busemeyer & Li (2010) (docs/concepts.md, section 7).
 DEFAULT_PARAMETERS = {"phi1": 0.022, "phi2": 0.05, "beta": 12.0, "sigma2": 1.0}
 DEFAULT_STEPS = 100
 DEFAULT_MAX_STEPS = 10_000
+#: Most preference trajectories ``mdft effects`` draws per scenario.
+MAX_TRAJECTORIES = 1000
 _MODEL_KEYS = {"M", "w", "phi1", "phi2", "beta", "sigma2", "P0", "labels"}
 
 
-class UsageError(Exception):
-    """Bad input from the user; reported through argparse (exit code 2).
-
-    Examples
-    --------
-    >>> main(["simulate"])
-    Traceback (most recent call last):
-    ...
-    SystemExit: 2
-    """
-
-
-# ----------------------------------------------------------------------------- registry
-@dataclass(frozen=True)
-class Arg:
-    """One ``add_argument`` call: flags and keyword arguments."""
-
-    flags: tuple
-    kwargs: dict
-
-
-def arg(*flags, **kwargs) -> Arg:
-    """Declare an argument of a subcommand (same signature as ``add_argument``).
-
-    Examples
-    --------
-    >>> arg("--samples", type=int, default=10).flags
-    ('--samples',)
-    """
-    return Arg(flags, kwargs)
-
-
-@dataclass(frozen=True)
-class _Command:
-    name: str
-    help: str
-    description: str
-    arguments: tuple
-    run: Callable
-
-
-_COMMANDS: list = []
-
-
-class _HelpFormatter(argparse.HelpFormatter):
-    """Show an argument's default in its help, unless there is none to show."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        if action.default not in (None, False, argparse.SUPPRESS) and "%(default)" not in text:
-            text += " (default: %(default)s)"
-        return text
-
-
-def subcommand(name: str, *, help: str, arguments=(), description: str | None = None):
-    """Register the decorated function ``run(args) -> int`` as ``mdft <name>``.
-
-    Parameters
-    ----------
-    name : str
-        The command word.
-    help : str
-        One line for ``mdft --help``.
-    arguments : sequence of Arg
-        The command's arguments, made with :func:`arg`.
-    description : str, optional
-        Longer text for ``mdft <name> --help``; ``help`` by default.
-
-    Examples
-    --------
-    >>> @subcommand("hello", help="say hello", arguments=[arg("--name", default="world")])
-    ... def _hello(args):
-    ...     print(f"hello {args.name}")
-    ...     return 0
-    >>> main(["hello", "--name", "MDFT"])
-    hello MDFT
-    0
-    >>> _COMMANDS.pop().name  # tidy up the registry
-    'hello'
-    """
-
-    def register(run):
-        _COMMANDS.append(_Command(name, help, description or help, tuple(arguments), run))
-        return run
-
-    return register
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``mdft`` parser with one sub-parser per registered command.
-
-    Examples
-    --------
-    >>> args = build_parser().parse_args(["effects", "--samples", "100"])
-    >>> args.command, args.samples, args.out
-    ('effects', 100, 'effects.png')
-    """
-    parser = argparse.ArgumentParser(
-        prog="mdft",
-        description="Multi-alternative Decision Field Theory: simulation and context effects.",
-    )
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for cmd in _COMMANDS:
-        sub = commands.add_parser(
-            cmd.name, help=cmd.help, description=cmd.description,
-            formatter_class=_HelpFormatter,
-        )
-        for a in cmd.arguments:
-            sub.add_argument(*a.flags, **a.kwargs)
-        sub.set_defaults(_run=cmd.run, _parser=sub)
-    return parser
-
-
-def main(argv=None) -> int:
-    """Run the command line; return the exit code (argparse exits with 2 on bad input).
-
-    Examples
-    --------
-    >>> main(["simulate", "--options", "1,3;3,1", "--samples", "1000", "--seed", "0",
-    ...       "--json"])  # doctest: +ELLIPSIS
-    {...}
-    0
-    """
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args._run(args) or 0)
-    except UsageError as exc:
-        args._parser.error(str(exc))  # exits with code 2
-    except BrokenPipeError:  # e.g. `mdft simulate ... --json | head`
-        sys.stdout = open(os.devnull, "w")
-        return 0
-
-
-# ----------------------------------------------------------------------------- argument types
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a finite positive number, got {text!r}")
-    return value
-
-
-def _real(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
+# ----------------------------------------------------------------------------- stopping
 _STOPPING_ARGS = (
-    arg("--steps", type=_positive_int, metavar="N",
+    arg("--steps", type=bounded_int(MAX_STEPS), metavar="N",
         help="fixed deliberation time: choose the best option after N steps"),
-    arg("--threshold", type=_positive_float, metavar="THETA",
+    arg("--threshold", type=positive_float, metavar="THETA",
         help="threshold stopping: choose the first option whose preference reaches THETA"),
-    arg("--max-steps", type=_positive_int, metavar="K", default=None,
+    arg("--max-steps", type=bounded_int(MAX_STEPS), metavar="K", default=None,
         help=f"with --threshold: trials undecided after K steps are reported as undecided "
              f"(default: {DEFAULT_MAX_STEPS})"),
-)
-_SEED_ARG = arg(
-    "--seed", type=_non_negative_int, default=None,
-    help="random seed (an integer >= 0); a fresh seed is drawn and printed if omitted",
 )
 
 
@@ -255,12 +79,6 @@ def _stopping_json(stopping) -> dict:
         return {"rule": "fixed_time", "n_steps": int(stopping.n_steps)}
     return {"rule": "threshold", "theta": float(stopping.theta),
             "max_steps": int(stopping.max_steps)}
-
-
-def _seed(args) -> int:
-    if args.seed is not None:
-        return args.seed
-    return int(np.random.SeedSequence().entropy % (2**63))
 
 
 # ----------------------------------------------------------------------------- simulate
@@ -300,13 +118,19 @@ def _parse_list(name: str, text: str, cast=float) -> list:
 def _read_model_file(path: str) -> dict:
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"--model: cannot read {path!r} ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise UsageError(
+            f"--model: {path!r} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+        ) from None
     try:
         spec = json.loads(text)
     except json.JSONDecodeError as exc:
         raise UsageError(f"--model: {path!r} is not valid JSON ({exc})") from None
+    except (ValueError, RecursionError) as exc:  # e.g. integers of more than 4300 digits
+        raise UsageError(f"--model: {path!r} is not usable JSON ({exc})") from None
     if not isinstance(spec, dict):
         raise UsageError(f"--model: {path!r} must hold a JSON object with at least 'M'")
     unknown = set(spec) - _MODEL_KEYS
@@ -349,6 +173,9 @@ def _model_from_args(args):
         labels = _parse_list("--labels", args.labels, cast=str)
     else:
         labels = spec.get("labels", _default_labels(n_options))
+        if not isinstance(labels, list) or not all(isinstance(x, (str, int, float))
+                                                   for x in labels):
+            raise UsageError(f"labels must be a list of names, one per option (got {labels!r})")
     labels = [str(s) for s in labels]
     if len(labels) != n_options:
         raise UsageError(f"labels: need one per option, {n_options} (got {len(labels)}: {labels})")
@@ -356,7 +183,7 @@ def _model_from_args(args):
         warnings.simplefilter("always", mdft.UnstableFeedbackWarning)
         try:
             model = mdft.MDFTModel(M, w, P0=spec.get("P0"), **params)
-        except (ValueError, TypeError) as exc:
+        except (ValueError, TypeError, OverflowError) as exc:
             raise UsageError(f"invalid model: {exc}") from None
     notes = [str(c.message) for c in caught if issubclass(c.category, mdft.UnstableFeedbackWarning)]
     return model, labels, notes
@@ -381,15 +208,15 @@ def _model_from_args(args):
         arg("--weights", metavar="W",
             help="attention weights, e.g. '0.5,0.5' (sum to 1; default: equal attention)"),
         arg("--labels", metavar="NAMES", help="option labels, e.g. 'A,B,C'"),
-        arg("--phi1", type=_real, help="distance sensitivity of lateral inhibition (default: 0.022)"),
-        arg("--phi2", type=_real, help="strength of lateral inhibition and decay (default: 0.05)"),
-        arg("--beta", type=_real,
+        arg("--phi1", type=real, help="distance sensitivity of lateral inhibition (default: 0.022)"),
+        arg("--phi2", type=real, help="strength of lateral inhibition and decay (default: 0.05)"),
+        arg("--beta", type=real,
             help="weight of the dominance dimension in the distance (default: 12)"),
-        arg("--sigma2", type=_real, help="variance of the valence noise (default: 1)"),
+        arg("--sigma2", type=real, help="variance of the valence noise (default: 1)"),
         *_STOPPING_ARGS,
-        arg("--samples", type=_positive_int, default=10_000, metavar="N",
+        arg("--samples", type=bounded_int(MAX_SAMPLES), default=10_000, metavar="N",
             help="number of simulated trials"),
-        _SEED_ARG,
+        SEED_ARG,
         arg("--json", action="store_true", help="print the result as JSON"),
     ),
 )
@@ -401,7 +228,7 @@ def _simulate_command(args) -> int:
         stopping = _stopping(args, default=lambda: mdft.FixedTime(DEFAULT_STEPS))
     except (ValueError, TypeError) as exc:
         raise UsageError(str(exc)) from None
-    seed = _seed(args)
+    seed = seed_of(args)
     res = mdft.simulate(model, args.samples, stopping=stopping, rng=seed)
     rts = getattr(res, "mean_response_times", None) if hasattr(stopping, "theta") else None
     if args.json:
@@ -413,7 +240,7 @@ def _simulate_command(args) -> int:
                     "probability": float(res.probabilities[i]),
                     "standard_error": float(res.standard_errors[i]),
                     "count": int(res.counts[i]),
-                    **({"mean_response_time": _finite_or_none(rts[i])} if rts is not None else {}),
+                    **({"mean_response_time": finite_or_none(rts[i])} if rts is not None else {}),
                 }
                 for i in range(model.n_options)
             ],
@@ -450,7 +277,7 @@ def _simulate_command(args) -> int:
         rows.append(row)
     rows.append(["undecided", "", f"{res.p_undecided:.4f}", "", str(int(res.n_undecided))]
                 + ([""] if rts is not None else []))
-    print(_table(header, rows))
+    print(table(header, rows))
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     return 0
@@ -468,13 +295,13 @@ def _simulate_command(args) -> int:
     ),
     arguments=(
         *_STOPPING_ARGS,
-        arg("--samples", type=_positive_int, default=20_000, metavar="N",
+        arg("--samples", type=bounded_int(MAX_SAMPLES), default=20_000, metavar="N",
             help="trials per option set"),
-        _SEED_ARG,
+        SEED_ARG,
         arg("--out", default="effects.png", metavar="PNG", help="where to write the figure"),
-        arg("--trajectories", type=_non_negative_int, default=5, metavar="K",
+        arg("--trajectories", type=non_negative_int, default=5, metavar="K",
             help="preference trajectories drawn per scenario"),
-        arg("--criterion", type=_positive_float, default=3.0, metavar="Z",
+        arg("--criterion", type=positive_float, default=3.0, metavar="Z",
             help="standard errors an effect must exceed to count as shown"),
         arg("--json", action="store_true", help="print the table as JSON"),
     ),
@@ -491,7 +318,12 @@ def _effects_command(args) -> int:
         stopping = _stopping(args, default=mdft.default_stopping)
     except (ValueError, TypeError) as exc:
         raise UsageError(str(exc)) from None
-    seed = _seed(args)
+    if args.trajectories > min(args.samples, MAX_TRAJECTORIES):
+        raise UsageError(
+            f"--trajectories ({args.trajectories}) must not exceed --samples ({args.samples}) "
+            f"nor {MAX_TRAJECTORIES}; they are a few trials drawn for the figure"
+        )
+    seed = seed_of(args)
     results = mdft.context_effects(
         stopping=stopping, n_samples=args.samples, n_trajectories=args.trajectories,
         criterion=args.criterion, rng=seed,
@@ -528,7 +360,7 @@ def _effects_command(args) -> int:
             f"{r.z:.1f}",
             "yes" if r.shown else "no",
         ])
-    print(_table(header, rows))
+    print(table(header, rows))
     print(f"figure written to {out}")
     return 0
 
@@ -558,7 +390,7 @@ def _effect_json(r) -> dict:
         "p_undecided": [float(r.p_undecided_ternary), float(r.p_undecided_binary)],
         "effect_size": float(r.effect_size),
         "standard_error": float(r.standard_error),
-        "z": _finite_or_none(r.z),
+        "z": finite_or_none(r.z),
         "shown": bool(r.shown),
     }
 
@@ -573,21 +405,3 @@ def _write_figure(results, path: Path) -> None:
         fig.savefig(path, dpi=110)
     except OSError as exc:
         raise UsageError(f"--out: cannot write {str(path)!r} ({exc.strerror or exc})") from None
-
-
-# ----------------------------------------------------------------------------- output helpers
-def _finite_or_none(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _table(header, rows) -> str:
-    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
-    lines = ["  ".join(str(c).ljust(w) for c, w in zip(header, widths)).rstrip()]
-    lines.append("  ".join("-" * w for w in widths))
-    lines += ["  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows]
-    return "\n".join(lines)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
