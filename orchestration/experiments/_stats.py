@@ -47,7 +47,7 @@ def ratio_se(numerators, denominators):
     return r, float(np.std(a - r * b, ddof=1) / (math.sqrt(a.size) * abs(b.mean())))
 
 
-def cell(mean, se=None, digits=3) -> str:
+def cell(mean, se=None, *, digits=3) -> str:
     """``"0.123 ± 0.004"`` (or ``"-"`` where the mean is not finite).
 
     Examples

@@ -136,7 +136,9 @@ def work(params: dict, seed) -> dict:
             warnings.simplefilter("ignore", RuntimeWarning)  # cut trajectories are counted below
             traj = orch.rollout(orchestrator, n, rng=np.random.default_rng(child_seed(seed, 3, i)),
                                 max_length=params["max_length"])
-        lengths = traj.lengths
+        lengths = np.asarray(traj.lengths)
+        reached = traj.reached_terminal
+        assert reached is not None  # rollout always records it
         penalty = penalty_per_trajectory(nominal, learned.penalties, traj)
         violations = violations_per_trajectory(world, traj)
         methods[name] = {
@@ -144,7 +146,7 @@ def work(params: dict, seed) -> dict:
             "penalty": float(penalty.mean()),
             "violations": float(violations.mean()),
             "js": irl.visitation_js_divergence(traj, reference, n_states=n_s, n_actions=n_a),
-            "reached": float(np.mean(traj.reached_terminal)),
+            "reached": float(np.mean(reached)),
         }
         raw[name] = (lengths, penalty)
     ks = []
@@ -152,8 +154,8 @@ def work(params: dict, seed) -> dict:
         (l_wa, p_wa), (l_md, p_md) = raw[f"wa-{k}"], raw[f"mdft-{k}"]
         ks.append({"length_p": float(stats.ks_2samp(l_wa, l_md, method="asymp").pvalue),
                    "penalty_p": float(stats.ks_2samp(p_wa, p_md, method="asymp").pvalue)})
-    lengths = {name: raw[name][0].tolist() for name in raw if name.startswith(("wa-", "mdft-"))}
-    return {"shortest": shortest, "methods": methods, "ks": ks, "lengths": lengths,
+    kept = {name: raw[name][0].tolist() for name in raw if name.startswith(("wa-", "mdft-"))}
+    return {"shortest": shortest, "methods": methods, "ks": ks, "lengths": kept,
             "mesc_converged": bool(learned.converged),
             "true_violations": float(violations_per_trajectory(world, reference).mean())}
 

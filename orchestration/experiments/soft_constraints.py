@@ -19,6 +19,8 @@ the learned model's soft policy.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from . import _stats
@@ -84,7 +86,7 @@ def summarise(s: dict, results: dict) -> Report:
     for i, p in enumerate(s["p_slips"]):
         group = {n: [r for k, r in results.items() if k.startswith(f"slip{i}-") and
                      k.endswith(f"-n{n:04d}")] for n in ns}
-        c = {
+        c: dict[str, Any] = {
             "fn": {chi: [_stats.mean_se([r["errors"][chi]["fn"] for r in group[n]]) for n in ns]
                    for chi in chis},
             "fp": {chi: [_stats.mean_se([r["errors"][chi]["fp"] for r in group[n]]) for n in ns]
