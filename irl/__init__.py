@@ -5,6 +5,8 @@ Q-values and policies of a nominal MDP and of one whose soft constraints were
 learned from demonstrations. It does not depend on :mod:`mdft`.
 """
 
+from ._version import __version__
+
 from .mdp import MDP, TransitionFeatures
 from .gridworld import ACTIONS, ACTION_MOVES, COLOURS, GridWorld
 from .planning import (

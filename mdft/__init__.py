@@ -4,6 +4,8 @@ The engine is standalone: it knows nothing of MDPs or of the orchestration
 built on it. See ``docs/concepts.md`` for the equations and conventions.
 """
 
+from ._version import __version__
+
 from .model import (
     MDFTModel,
     UnstableFeedbackWarning,
