@@ -38,7 +38,7 @@ import numpy as np
 from scipy import special
 
 from ._validation import as_count
-from .model import MDFTModel
+from .model import MDFTModel, warn_if_growing
 
 __all__ = [
     "ClosedFormAccuracyWarning",
@@ -98,8 +98,14 @@ def preference_moments(model, n_steps):
 
     Raises
     ------
-    FloatingPointError
+    ValueError
         If the moments overflow (a strongly expansive ``S`` over a very long horizon).
+
+    Warns
+    -----
+    UnstableFeedbackWarning
+        If preferences can grow more than tenfold over ``n_steps`` steps
+        (``rho(S) ** n_steps > 10``, ``docs/concepts.md``).
 
     Notes
     -----
@@ -128,11 +134,12 @@ def preference_moments(model, n_steps):
     with np.errstate(over="ignore", invalid="ignore"):
         mean, cov = _moments(S, mu, phi, np.asarray(model.P0), n_steps)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-        raise FloatingPointError(
-            f"the moments of P(T) are not finite for n_steps={n_steps} (spectral radius of S "
-            f"{model.spectral_radius:.6g}): preferences overflow; use fewer steps or a "
-            "feedback matrix with spectral radius closer to 1"
+        raise ValueError(
+            f"n_steps={n_steps} is too long for this model: the moments of P(T) are not finite "
+            f"(spectral radius of S {model.spectral_radius:.6g}), preferences overflow; use "
+            "fewer steps or a feedback matrix with spectral radius closer to 1"
         )
+    warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
     return mean, cov
 
 
@@ -633,9 +640,11 @@ def mixture_choice_probabilities(model, n_steps, *, n_sequences=20_000, rng=None
         att_mean, att_cov = _moments(S, CM @ w, CM @ (np.diag(w) - np.outer(w, w)) @ CM.T,
                                      np.zeros(n), n_steps)
     if not all(np.all(np.isfinite(x)) for x in (base, noise, att_mean, att_cov)):
-        raise FloatingPointError(
-            f"the moments of P(T) are not finite for n_steps={n_steps}; preferences overflow"
+        raise ValueError(
+            f"n_steps={n_steps} is too long for this model: the moments of P(T) are not "
+            "finite, preferences overflow"
         )
+    warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
     # Attention sums of the sampled sequences: A(t+1) = S A(t) + C M e_{j(t+1)}.
     A = np.zeros((n_sequences, n))
     cum = np.cumsum(w)

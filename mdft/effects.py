@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from dataclasses import dataclass, field
 from typing import Iterator, Sequence
 
@@ -24,7 +23,7 @@ import numpy as np
 
 from ._validation import as_count, as_float_array, as_scalar
 from .closed_form import choice_probabilities
-from .model import MDFTModel, UnstableFeedbackWarning
+from .model import MDFTModel
 from .simulate import FixedTime, Threshold, simulate
 
 __all__ = [
@@ -198,10 +197,7 @@ class ContextEffect:
 
     def model(self) -> MDFTModel:
         """The MDFT model of the full option set."""
-        with warnings.catch_warnings():
-            # rho(S) >= 1 is expected for some canonical sets (docs/concepts.md, section 8).
-            warnings.simplefilter("ignore", UnstableFeedbackWarning)
-            return MDFTModel(self.M, self.w, **self.parameters)
+        return MDFTModel(self.M, self.w, **self.parameters)
 
     def binary_model(self) -> MDFTModel:
         """The MDFT model of the binary baseline (same parameters)."""

@@ -16,6 +16,7 @@ stated once here and in ``docs/concepts.md``:
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -23,6 +24,8 @@ import numpy as np
 from ._validation import as_attention, as_float_array, as_scalar
 
 __all__ = [
+    "GROWTH_LIMIT",
+    "REFERENCE_STEPS",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",
@@ -31,12 +34,55 @@ __all__ = [
 ]
 
 
-class UnstableFeedbackWarning(RuntimeWarning):
-    """The spectral radius of the feedback matrix ``S`` is 1 or more.
+#: Growth of preferences, ``rho(S) ** n_steps``, past which an
+#: :class:`UnstableFeedbackWarning` is issued (``docs/concepts.md``, section 4).
+GROWTH_LIMIT = 10.0
 
-    Preferences then need not settle: they can grow without bound as the
-    deliberation goes on.
+#: Deliberation length assumed where no horizon is known (when a model is built):
+#: the fixed time of the paper's orchestrator and the order of the canonical
+#: threshold's response times. A model warns when ``rho(S) ** 100 > 10``, i.e.
+#: ``rho(S) > 1.0233``.
+REFERENCE_STEPS = 100
+
+
+class UnstableFeedbackWarning(RuntimeWarning):
+    """Preferences can grow by a meaningful factor over the deliberation.
+
+    Issued when ``rho(S) ** n_steps > GROWTH_LIMIT`` (10): by
+    :class:`MDFTModel` for the reference horizon of ``REFERENCE_STEPS`` (100)
+    steps, and by the fixed-time computations (:func:`mdft.simulate` with
+    :class:`mdft.FixedTime`, :func:`mdft.choice_probabilities`) for their own
+    ``n_steps``. A spectral radius at or barely above 1 (rounding, or the
+    canonical compromise set's 1.009) is not flagged.
     """
+
+
+def growth_factor(spectral_radius: float, n_steps: int) -> float:
+    """``rho(S) ** n_steps``: how much preferences can grow over ``n_steps`` steps (inf on overflow)."""
+    if spectral_radius <= 1.0:
+        return spectral_radius**n_steps
+    exponent = n_steps * math.log(spectral_radius)
+    return math.exp(exponent) if exponent < 700.0 else math.inf
+
+
+def warn_if_growing(spectral_radius: float, n_steps: int | None = None, *, stacklevel=3) -> None:
+    """Issue :class:`UnstableFeedbackWarning` where ``rho(S) ** n_steps > GROWTH_LIMIT``.
+
+    ``n_steps=None`` means no horizon is known: :data:`REFERENCE_STEPS` is used.
+    """
+    horizon = REFERENCE_STEPS if n_steps is None else n_steps
+    growth = growth_factor(spectral_radius, horizon)
+    if growth <= GROWTH_LIMIT:
+        return
+    where = (f"a deliberation of {horizon} steps (the reference length)" if n_steps is None
+             else f"n_steps={horizon} steps")
+    warnings.warn(
+        f"the feedback matrix S has spectral radius {spectral_radius:.6g}: preferences can grow "
+        f"by a factor of up to {growth:.3g} over {where}, more than {GROWTH_LIMIT:g}; lower phi2 "
+        "or raise phi1 for a stable model",
+        UnstableFeedbackWarning,
+        stacklevel=stacklevel + 1,
+    )
 
 
 def contrast_matrix(n_options: int) -> np.ndarray:
@@ -166,7 +212,10 @@ class MDFTModel:
         from matrices).
     spectral_radius : float
         ``max |eig(S)|``. Preferences stay bounded in expectation only if it is
-        below 1; an :class:`UnstableFeedbackWarning` is issued otherwise.
+        below 1. An :class:`UnstableFeedbackWarning` is issued where it lets them
+        grow more than tenfold over a deliberation of 100 steps
+        (``rho(S) > 1.0233``); the fixed-time computations check their own
+        number of steps.
 
     Notes
     -----
@@ -189,7 +238,8 @@ class MDFTModel:
 
     Adding the compromise C = (2, 2) makes ``S`` slightly expansive (its
     spectral radius is about 1.009): lateral inhibition between close options
-    is what produces the compromise effect.
+    is what produces the compromise effect. Preferences can then grow by a
+    factor of ``1.009 ** 100 = 2.4`` over 100 steps, too little to warn about.
     """
 
     __slots__ = (
@@ -263,13 +313,7 @@ class MDFTModel:
         self._P0 = _readonly(P0)
         self._standard_contrast = standard_contrast
         self._spectral_radius = float(np.max(np.abs(np.linalg.eigvals(S))))
-        if self._spectral_radius >= 1.0:
-            warnings.warn(
-                f"the feedback matrix S has spectral radius {self._spectral_radius:.6g} >= 1: "
-                "preferences can grow without bound; lower phi2 or raise phi1 for a stable model",
-                UnstableFeedbackWarning,
-                stacklevel=3,
-            )
+        warn_if_growing(self._spectral_radius, stacklevel=3)
 
     # ------------------------------------------------------------------ accessors
     M = property(lambda self: self._M, doc="Evaluations, shape (n_options, n_attributes).")

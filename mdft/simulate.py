@@ -25,7 +25,7 @@ import numpy as np
 
 from . import _kernels
 from ._validation import as_count, as_float_array, as_scalar
-from .model import MDFTModel
+from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
 
 __all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
@@ -367,6 +367,7 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
     shortcut = None
     if not threshold:
         _check_growth(model.spectral_radius, n_steps)
+        warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
         shortcut = _fixed_time_shortcut(S, CM, C, P0, model.sigma2, n_steps)
     if shortcut is not None:
         method = "shortcut"
