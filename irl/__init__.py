@@ -47,6 +47,7 @@ from .io import (
     save_mesc_result,
 )
 from .scobee import HardConstraintResult, infer_hard_constraints
+from .warmup import WarmupReport, warmup
 
 __all__ = [
     "MDP",
@@ -94,4 +95,6 @@ __all__ = [
     "from_gymnasium",
     "HardConstraintResult",
     "infer_hard_constraints",
+    "WarmupReport",
+    "warmup",
 ]

@@ -33,6 +33,7 @@ from .effects import (
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
+from .warmup import WarmupReport, warmup
 
 __all__ = [
     "FixedTime",
@@ -64,4 +65,6 @@ __all__ = [
     "default_stopping",
     "ThresholdProbabilities",
     "threshold_probabilities",
+    "WarmupReport",
+    "warmup",
 ]
