@@ -172,6 +172,23 @@ class HardConstraintScores:
     false_positive_rate: float
     false_discovery_rate: float
 
+    def summary(self) -> str:
+        """The confusion counts and the four rates, as text.
+
+        Examples
+        --------
+        >>> print(hard_constraint_scores([True, False, False], [True, True, False]).summary())
+        predicted constraints: 1 true positive, 1 false positive, 0 false negative, 1 true negative
+        precision 0.5000, recall 1.0000, false positive rate 0.5000, false discovery rate 0.5000
+        """
+        return (
+            f"predicted constraints: {self.n_true_positive} true positive, "
+            f"{self.n_false_positive} false positive, {self.n_false_negative} false negative, "
+            f"{self.n_true_negative} true negative\n"
+            f"precision {self.precision:.4f}, recall {self.recall:.4f}, false positive rate "
+            f"{self.false_positive_rate:.4f}, false discovery rate {self.false_discovery_rate:.4f}"
+        )
+
 
 def _ratio(num: int, den: int, default: float) -> float:
     return float(num) / float(den) if den > 0 else float(default)
@@ -341,6 +358,25 @@ class SoftConstraintErrors:
     n_constrained: int
     n_unconstrained: int
     chi: float
+
+    def summary(self) -> str:
+        """The counts and the paper's shares, as text.
+
+        Examples
+        --------
+        >>> print(soft_constraint_errors([0, -50], [0.27, 0.82], [0.9, 0.8], chi=0.2).summary())
+        soft constraints at chi = 0.2, 2 candidates (1 constrained, 1 unconstrained)
+        false positives: 1 (0.5000 of all, 1.0000 of the unconstrained)
+        false negatives: 0 (0.0000 of all, 0.0000 of the constrained)
+        """
+        return (
+            f"soft constraints at chi = {self.chi:g}, {self.n_candidates} candidates "
+            f"({self.n_constrained} constrained, {self.n_unconstrained} unconstrained)\n"
+            f"false positives: {self.n_false_positive} ({self.false_positives:.4f} of all, "
+            f"{self.false_positive_share:.4f} of the unconstrained)\n"
+            f"false negatives: {self.n_false_negative} ({self.false_negatives:.4f} of all, "
+            f"{self.false_negative_share:.4f} of the constrained)"
+        )
 
 
 def soft_constraint_errors(true_cost, zeta_true, zeta_pred, *, chi=0.2) -> SoftConstraintErrors:

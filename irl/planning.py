@@ -28,7 +28,7 @@ import numpy as np
 
 from . import _kernels
 from .mdp import MDP, _as_float, _as_int, _as_real
-from ._repr import compact_repr
+from ._repr import compact_repr, iterations, spread
 
 __all__ = [
     "PlanningResult",
@@ -72,6 +72,21 @@ class PlanningResult:
     n_iter: int
     converged: bool
 
+    def summary(self) -> str:
+        """Size, convergence and the range of the values, as text.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> print(irl.value_iteration(world.nominal_mdp).summary())  # doctest: +ELLIPSIS
+        value iteration: 9 states x 8 actions, converged after ... iterations
+        values: min ..., mean ..., max ...
+        """
+        n_states, n_actions = self.q_values.shape
+        return (f"value iteration: {n_states} states x {n_actions} actions, "
+                f"{iterations(self.n_iter, self.converged)}\nvalues: {spread(self.values)}")
+
 
 @dataclass(frozen=True, eq=False)
 class SoftPlanningResult:
@@ -100,6 +115,32 @@ class SoftPlanningResult:
     n_iter: int
     converged: bool
 
+    def summary(self) -> str:
+        """Size, horizon, convergence, the range of the values and the policy's entropy.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> print(irl.soft_value_iteration(world.nominal_mdp, horizon=4).summary())
+        ... # doctest: +ELLIPSIS
+        soft value iteration: 9 states x 8 actions, horizon 4, converged after 4 iterations
+        values at the start: min ..., mean ..., max ...
+        policy entropy (nats): min ..., mean ..., max ...
+        """
+        n_states, n_actions = self.q_values.shape[-2:]
+        horizon = "infinite horizon" if self.horizon is None else f"horizon {self.horizon}"
+        start = self.values if self.values.ndim == 1 else self.values[0]
+        first = self.policy if self.policy.ndim == 2 else self.policy[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            entropy = -np.sum(np.where(first > 0, first * np.log(first), 0.0), axis=1)
+        return "\n".join([
+            f"soft value iteration: {n_states} states x {n_actions} actions, {horizon}, "
+            f"{iterations(self.n_iter, self.converged)}",
+            f"values at the start: {spread(start)}",
+            f"policy entropy (nats): {spread(entropy)}",
+        ])
+
 
 @dataclass(frozen=True, eq=False)
 class VisitationResult:
@@ -125,6 +166,30 @@ class VisitationResult:
     destinations: np.ndarray
     n_iter: int
     converged: bool
+
+    def summary(self) -> str:
+        """Total expected visits, the most visited states, and convergence, as text.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> soft = irl.soft_value_iteration(world.nominal_mdp, horizon=4)
+        >>> print(irl.state_action_visitation(world.nominal_mdp, soft.policy).summary())
+        ... # doctest: +ELLIPSIS
+        visitation: 9 states x 8 actions, converged after ... iterations
+        expected transitions: ...
+        most visited states: ...
+        """
+        n_states, n_actions = self.state_action.shape
+        top = np.argsort(-self.states, kind="stable")[:5]
+        visited = ", ".join(f"{int(s)} ({self.states[s]:.3g})" for s in top if self.states[s] > 0)
+        return "\n".join([
+            f"visitation: {n_states} states x {n_actions} actions, "
+            f"{iterations(self.n_iter, self.converged)}",
+            f"expected transitions: {self.state_action.sum():.4g}",
+            f"most visited states: {visited or 'none'}",
+        ])
 
 
 def _warn(name, n_iter, tol):

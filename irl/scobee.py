@@ -270,6 +270,30 @@ class HardConstraintResult:
         """Number of inferred constraints (``len(constraints)``)."""
         return int(self.constraints.size)
 
+    def summary(self) -> str:
+        """The inferred constraints in order, with the KL divergence after each, as text.
+
+        Examples
+        --------
+        >>> from irl.gridworld import GridWorld
+        >>> world = GridWorld(3, 0, 2, p_slip=0.0)
+        >>> res = infer_hard_constraints(world.nominal_mdp, [([0, 3, 4, 5, 2], [2, 1, 1, 3])])
+        >>> print(res.summary())
+        4 hard constraints (stopped: kl_decrease), horizon 8, KL of the nominal model 8.4543
+          #  constraint               removed mass         KL
+          1  state 1                        0.9699     4.9516
+          2  action down_right              0.9121     2.5198
+          3  action up_right                0.8960     0.2561
+          4  action up_left                 0.1604     0.0812
+        """
+        rows = [f"{'#':>3s}  {'constraint':<24s} {'removed mass':>12s} {'KL':>10s}"]
+        rows += [f"{k + 1:3d}  {name:<24s} {m:12.4f} {kl:10.4f}"
+                 for k, (name, m, kl) in enumerate(zip(self.names, self.eliminated_mass,
+                                                       self.kl))]
+        return (f"{self.n_constraints} hard constraints (stopped: {self.stop_reason}), "
+                f"horizon {self.horizon}, KL of the nominal model {self.kl_initial:.4f}\n"
+                + "\n".join(rows))
+
     def penalties(self, penalty=_HARD_PENALTY):
         """Penalty vector putting ``penalty`` on each inferred constraint, shape (n_features,).
 

@@ -83,7 +83,9 @@ def as_count(name: str, value, *, low: int = 1) -> int:
 def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -> np.ndarray:
     """Check attention weights: shape (n_attributes,), non-negative, summing to one.
 
-    Returns a copy renormalised to sum to one exactly.
+    Returns a copy renormalised to sum to one; weights that already sum to one within
+    1e-12 are kept as they are, so that normalised weights pass through unchanged (a model
+    rebuilt from its own ``w`` has the same ``w``, bit for bit).
     """
     arr = as_float_array(name, w, ndim=1)
     if arr.shape[0] != n_attributes:
@@ -98,4 +100,4 @@ def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -
         raise ValueError(
             f"{name} must sum to 1 (got {total:.6g}); pass normalised attention weights"
         )
-    return arr / total
+    return arr if abs(total - 1.0) <= 1e-12 else arr / total

@@ -37,6 +37,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import special
 
+from ._export import builtin, fmt, labels_for, table, to_json
+from ._repr import compact_repr
 from ._validation import as_count
 from .model import MDFTModel, warn_if_growing
 
@@ -566,9 +568,48 @@ class MixtureProbabilities:
     ([0.5, 0.5], 1000)
     """
 
+    __repr__ = compact_repr
+
     probabilities: np.ndarray
     standard_errors: np.ndarray
     n_sequences: int
+
+    def summary(self, labels=None) -> str:
+        """A text table of the probabilities and their standard errors.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+        ...                        beta=12.0)
+        >>> res = mdft.mixture_choice_probabilities(model, 20, n_sequences=1000, rng=0)
+        >>> print(res.summary(labels=["A", "B"]))
+        exact mixture over 1,000 attention sequences
+        option  P(choose)    s.e.
+        A          0.5018  0.0030
+        B          0.4982  0.0030
+        """
+        names = labels_for(labels, self.probabilities.shape[0])
+        rows = [[name, fmt(p), fmt(se)]
+                for name, p, se in zip(names, self.probabilities, self.standard_errors)]
+        return (f"exact mixture over {self.n_sequences:,} attention sequences\n"
+                + table(["option", "P(choose)", "s.e."], rows))
+
+    def to_dict(self) -> dict:
+        """The result as JSON-ready builtins.
+
+        Examples
+        --------
+        >>> MixtureProbabilities(np.array([0.5, 0.5]), np.array([0.01, 0.01]), 100).to_dict()
+        {'probabilities': [0.5, 0.5], 'standard_errors': [0.01, 0.01], 'n_sequences': 100}
+        """
+        return builtin({"probabilities": self.probabilities,
+                        "standard_errors": self.standard_errors,
+                        "n_sequences": self.n_sequences})
+
+    def to_json(self, path=None) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(), path)
 
 
 def mixture_choice_probabilities(model, n_steps, *, n_sequences=20_000, rng=None):

@@ -21,6 +21,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from ._export import builtin, describe_stopping, fmt, stopping_dict, table, to_json
 from ._validation import as_count, as_float_array, as_scalar
 from .closed_form import choice_probabilities
 from .model import MDFTModel
@@ -203,6 +204,16 @@ class ContextEffect:
         """The MDFT model of the binary baseline (same parameters)."""
         return self.model().subset(list(self.baseline))
 
+    def to_dict(self) -> dict:
+        """The scenario's fields as JSON-ready builtins.
+
+        Examples
+        --------
+        >>> COMPROMISE.to_dict()["M"]
+        [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
+        """
+        return builtin({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+
     def with_parameters(self, **changes) -> "ContextEffect":
         """Return a copy with some fields replaced (e.g. other parameters).
 
@@ -328,6 +339,77 @@ class EffectResult:
         """The scenario's name."""
         return self.scenario.name
 
+    def __repr__(self) -> str:
+        return (
+            f"EffectResult(name={self.name!r}, effect_size={self.effect_size:.4g}, "
+            f"standard_error={self.standard_error:.4g}, z={self.z:.4g}, shown={self.shown})"
+        )
+
+    def summary(self) -> str:
+        """A text table of the choice shares with and without the third option, and the effect.
+
+        Examples
+        --------
+        >>> res = context_effects("attraction", n_samples=2000, rng=0)["attraction"]
+        >>> print(res.summary())  # doctest: +ELLIPSIS
+        attraction: adding D, dominated by A only, raises A's share relative to B
+        threshold 17.5 (at most 10,000 steps), monte_carlo, 2,000 trials per option set
+        option  ternary    s.e.  binary    s.e.
+        A        0.5...
+        B        0.4...
+        D        0.0...       -       -
+        relative_share: ... -> ..., effect +0.0... (s.e. 0.0..., z = ...): ...
+        """
+        sc = self.scenario
+        binary_at = {opt: k for k, opt in enumerate(sc.baseline)}
+        rows = []
+        for i, label in enumerate(sc.labels):
+            k = binary_at.get(i)
+            rows.append([label, fmt(self.ternary[i]), fmt(self.ternary_se[i]),
+                         "-" if k is None else fmt(self.binary[k]),
+                         "-" if k is None else fmt(self.binary_se[k])])
+        samples = (f"{self.n_samples:,} trials per option set" if self.n_samples
+                   else "no sampling error")
+        verdict = (f"shown at {self.criterion:g} s.e." if self.shown else "not shown")
+        if sc.measure == "margin":
+            measure = f"margin {fmt(self.ternary_measure)}"
+        else:
+            measure = (f"relative_share: {fmt(self.binary_measure)} -> "
+                       f"{fmt(self.ternary_measure)}")
+        return "\n".join([
+            f"{sc.name}: {sc.expected}",
+            f"{describe_stopping(self.stopping)}, {self.method}, {samples}",
+            table(["option", "ternary", "s.e.", "binary", "s.e."], rows),
+            f"{measure}, effect {fmt(self.effect_size, '+.4f')} "
+            f"(s.e. {fmt(self.standard_error)}, z = {fmt(self.z, '.1f')}): {verdict}",
+        ])
+
+    def to_dict(self, *, trajectories: bool = False) -> dict:
+        """The result as JSON-ready builtins (NaN, e.g. the binary measure of a margin,
+        becomes None).
+
+        Parameters
+        ----------
+        trajectories : bool, default False
+            Also export the recorded preference trajectories.
+
+        Examples
+        --------
+        >>> d = context_effects("compromise", n_samples=1000, rng=0)["compromise"].to_dict()
+        >>> d["scenario"]["name"], d["stopping"]["rule"], d["binary_measure"]
+        ('compromise', 'threshold', None)
+        """
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out["scenario"] = self.scenario.to_dict()
+        out["stopping"] = stopping_dict(self.stopping)
+        if not trajectories:
+            del out["trajectories"]
+        return builtin(out)
+
+    def to_json(self, path=None, *, trajectories: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trajectories=trajectories), path)
+
 
 @dataclass(frozen=True)
 class ContextEffects:
@@ -367,6 +449,49 @@ class ContextEffects:
                     return r
             raise KeyError(f"no scenario named {key!r}; available: {list(self.names)}")
         return self.results[key]
+
+    def summary(self) -> str:
+        """One row per scenario: the measure with and without the third option, the effect.
+
+        Examples
+        --------
+        >>> print(context_effects(n_samples=5000, rng=0).summary())  # doctest: +ELLIPSIS
+        scenario    measure         binary  ternary   effect    s.e.  ...  shown
+        similarity  relative_share  0.5...  yes
+        attraction  relative_share  0.4...  yes
+        compromise  margin               -   0.1...  yes
+        all three effects shown (criterion: 3 standard errors)
+        """
+        rows = [[r.name, r.scenario.measure, fmt(r.binary_measure), fmt(r.ternary_measure),
+                 fmt(r.effect_size, "+.4f"), fmt(r.standard_error), fmt(r.z, ".1f"),
+                 "yes" if r.shown else "no"] for r in self.results]
+        shown = sum(r.shown for r in self.results)
+        n = len(self.results)
+        words = {1: "one", 2: "two", 3: "three"}
+        verdict = (f"all {words.get(n, n)} effects shown" if shown == n and n > 1
+                   else f"{shown} of {n} effects shown")
+        criteria = sorted({r.criterion for r in self.results})
+        crit = ", ".join(f"{c:g}" for c in criteria)
+        return (table(["scenario", "measure", "binary", "ternary", "effect", "s.e.", "z",
+                       "shown"], rows, left=2)
+                + f"\n{verdict} (criterion: {crit} standard errors)")
+
+    def to_dict(self, *, trajectories: bool = False) -> dict:
+        """``{"results": [...], "all_shown": bool}``, each result as :meth:`EffectResult.to_dict`.
+
+        Examples
+        --------
+        >>> import json
+        >>> d = context_effects("similarity", n_samples=1000, rng=0).to_dict()
+        >>> [r["scenario"]["name"] for r in d["results"]], type(json.dumps(d))
+        (['similarity'], <class 'str'>)
+        """
+        return {"results": [r.to_dict(trajectories=trajectories) for r in self.results],
+                "all_shown": self.all_shown}
+
+    def to_json(self, path=None, *, trajectories: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trajectories=trajectories), path)
 
 
 def default_stopping():

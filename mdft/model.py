@@ -21,6 +21,7 @@ import warnings
 
 import numpy as np
 
+from ._export import builtin, fmt, labels_for, table, to_json
 from ._validation import as_attention, as_float_array, as_scalar
 
 __all__ = [
@@ -440,6 +441,98 @@ class MDFTModel:
         M = params.pop("M")
         w = params.pop("w")
         return MDFTModel(M, w, **params)
+
+    # ----------------------------------------------------------------- export
+    def to_dict(self) -> dict:
+        """The model as JSON-ready builtins; :meth:`from_dict` rebuilds it.
+
+        A parametric model gives ``M``, ``w``, ``phi1``, ``phi2``, ``beta``, ``sigma2``
+        and ``P0``; a model built from matrices gives ``M``, ``w``, ``S``, ``C``,
+        ``sigma2`` and ``P0``.
+
+        Examples
+        --------
+        >>> m = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+        >>> m.to_dict()
+        {'M': [[1.0, 3.0], [3.0, 1.0]], 'w': [0.5, 0.5], 'sigma2': 1.0, 'P0': [0.0, 0.0], \
+'phi1': 0.022, 'phi2': 0.05, 'beta': 12.0}
+        >>> MDFTModel.from_dict(m.to_dict()).S.round(4).tolist()
+        [[0.95, -0.0122], [-0.0122, 0.95]]
+        """
+        out = {"M": self._M, "w": self._w, "sigma2": self._sigma2, "P0": self._P0}
+        if self.is_parametric:
+            out.update(phi1=self._phi1, phi2=self._phi2, beta=self._beta)
+        else:
+            out.update(S=self._S, C=self._C)
+        return builtin(out)
+
+    @classmethod
+    def from_dict(cls, data) -> "MDFTModel":
+        """Rebuild a model from :meth:`to_dict`'s output (or a dict of the same keys).
+
+        Parameters
+        ----------
+        data : dict
+            ``M``, ``w`` and either ``phi1``, ``phi2``, ``beta`` or ``S`` (and
+            optionally ``C``); optionally ``sigma2`` and ``P0``.
+
+        Examples
+        --------
+        >>> MDFTModel.from_dict({"M": [[1, 3], [3, 1]], "w": [0.5, 0.5], "phi1": 0.022,
+        ...                      "phi2": 0.05, "beta": 12.0}).n_options
+        2
+        """
+        if not isinstance(data, dict):
+            raise TypeError(f"data must be a dict (got {type(data).__name__})")
+        parametric = {"M", "w", "phi1", "phi2", "beta", "sigma2", "P0"}
+        explicit = {"M", "w", "S", "C", "sigma2", "P0"}
+        allowed = explicit if "S" in data else parametric
+        required = {"M", "w", "S"} if "S" in data else {"M", "w", "phi1", "phi2", "beta"}
+        unknown = sorted(set(map(str, data)) - allowed)
+        if unknown:
+            raise ValueError(f"data has unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        missing = sorted(required - set(data))
+        if missing:
+            raise ValueError(f"data lacks the key(s) {missing}; required: {sorted(required)}")
+        kwargs = {k: v for k, v in data.items() if k not in ("M", "w")}
+        if "S" in data:
+            return cls.from_matrices(data["M"], data["w"], **kwargs)
+        return cls(data["M"], data["w"], **kwargs)
+
+    def to_json(self, path=None) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given.
+
+        Read it back with ``MDFTModel.from_dict(json.loads(text))``.
+        """
+        return to_json(self.to_dict(), path)
+
+    def summary(self, labels=None) -> str:
+        """A text table of the options' evaluations and the model's parameters.
+
+        Examples
+        --------
+        >>> m = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+        >>> print(m.summary(labels=["A", "B"]))
+        MDFT model: 2 options, 2 attributes
+        option  attr 0  attr 1
+        A       1.0000  3.0000
+        B       3.0000  1.0000
+        w       0.5000  0.5000
+        phi1=0.022, phi2=0.05, beta=12, sigma2=1, spectral radius of S 0.9622
+        """
+        names = labels_for(labels, self.n_options)
+        header = ["option"] + [f"attr {j}" for j in range(self.n_attributes)]
+        rows = [[name] + [fmt(x) for x in row] for name, row in zip(names, self._M)]
+        rows.append(["w"] + [fmt(x) for x in self._w])
+        params = (f"phi1={self._phi1:g}, phi2={self._phi2:g}, beta={self._beta:g}, "
+                  if self.is_parametric else "explicit S, ")
+        if np.any(self._P0 != 0):
+            params += f"P0={np.round(self._P0, 4).tolist()}, "
+        return "\n".join([
+            f"MDFT model: {self.n_options} options, {self.n_attributes} attributes",
+            table(header, rows),
+            f"{params}sigma2={self._sigma2:g}, spectral radius of S {self._spectral_radius:.4f}",
+        ])
 
     def __repr__(self) -> str:
         if self.is_parametric:

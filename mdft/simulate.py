@@ -27,6 +27,7 @@ from . import _kernels
 from ._validation import as_count, as_float_array, as_scalar
 from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
+from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
 
 __all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
 
@@ -237,6 +238,76 @@ class SimulationResult:
         pmf = np.zeros((self.stopping.max_steps, self.n_options))
         np.add.at(pmf, (self.decision_steps[decided] - 1, self.choices[decided]), 1.0)
         return pmf / self.n_samples
+
+    def summary(self, labels=None) -> str:
+        """A text table: each option's share, standard error, count (and mean response time).
+
+        Parameters
+        ----------
+        labels : sequence of str, optional
+            One name per option; ``0, 1, ...`` by default.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> res = mdft.simulate(model, 1000, stopping=mdft.FixedTime(50), rng=0)
+        >>> print(res.summary(labels=["A", "B"]))  # doctest: +NORMALIZE_WHITESPACE
+        1,000 trials, fixed time, 50 steps (shortcut)
+        option     P(choose)    s.e.  count
+        A             0.5250  0.0158    525
+        B             0.4750  0.0158    475
+        undecided     0.0000              0
+        """
+        names = labels_for(labels, self.n_options)
+        with_rt = self.mean_response_times is not None
+        header = ["option", "P(choose)", "s.e.", "count"] + (["mean RT"] if with_rt else [])
+        rows = []
+        for i, name in enumerate(names):
+            row = [name, fmt(self.probabilities[i]), fmt(self.standard_errors[i]),
+                   int(self.counts[i])]
+            rows.append(row + ([fmt(self.mean_response_times[i], ".1f")] if with_rt else []))
+        rows.append(["undecided", fmt(self.p_undecided), "", self.n_undecided]
+                    + ([""] if with_rt else []))
+        title = f"{self.n_samples:,} trials, {describe_stopping(self.stopping)} ({self.method})"
+        return title + "\n" + table(header, rows)
+
+    def to_dict(self, *, trials: bool = False) -> dict:
+        """The result as JSON-ready builtins (NaN, e.g. the mean response time of an option
+        never chosen, becomes None).
+
+        Parameters
+        ----------
+        trials : bool, default False
+            Also export the per-trial arrays (``choices``, ``decision_steps``) and the
+            recorded trajectories, which can be large.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> d = mdft.simulate(model, 100, stopping=mdft.FixedTime(10), rng=0).to_dict()
+        >>> d["stopping"], d["counts"], d["n_undecided"]
+        ({'rule': 'fixed_time', 'n_steps': 10}, [45, 55], 0)
+        """
+        out = {
+            "n_options": self.n_options, "n_samples": self.n_samples,
+            "stopping": stopping_dict(self.stopping), "method": self.method,
+            "probabilities": self.probabilities, "standard_errors": self.standard_errors,
+            "counts": self.counts, "n_undecided": self.n_undecided,
+            "p_undecided": self.p_undecided, "mean_response_times": self.mean_response_times,
+        }
+        if trials:
+            out.update(choices=self.choices, decision_steps=self.decision_steps,
+                       trajectories=self.trajectories,
+                       trajectory_choices=self.trajectory_choices)
+        return builtin(out)
+
+    def to_json(self, path=None, *, trials: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trials=trials), path)
 
     def _need_threshold(self, what: str) -> None:
         if not isinstance(self.stopping, Threshold):
