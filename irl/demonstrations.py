@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
-from .mdp import MDP, _as_int
+from .mdp import MDP, _as_int, _check_size
 from .planning import check_policy, soft_value_iteration
 from ._repr import compact_repr
 
@@ -280,6 +280,7 @@ def sample_trajectories(mdp, policy, n, *, rng=None, max_steps=None, start=None)
     if max_steps is None:
         max_steps = pol.shape[0] if time_indexed else 1000
     max_steps = _as_int("max_steps", max_steps)
+    _check_size(f"n={n} trajectories of up to max_steps={max_steps} steps", n * max_steps)
     if start is None:
         p0 = mdp.start
     else:

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.special import rel_entr
 
 from ._validation import check_indices, is_flat_set, split_trajectory, trajectory_list
-from .mdp import _as_real
+from .mdp import _as_int, _as_real, _check_size
 
 __all__ = [
     "HardConstraintScores",
@@ -89,6 +89,8 @@ def _as_vector(name: str, value, what: str) -> np.ndarray:
     """``value`` as a new finite 1-d float array; ``what`` names its entries in the TypeError."""
     try:
         arr = np.array(value, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got a number too large for a float)") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be an array of {what} (got {value!r})") from exc
     if arr.ndim != 1:
@@ -109,6 +111,8 @@ def _as_probabilities(name: str, value) -> np.ndarray:
 def _as_nonnegative(name: str, value) -> np.ndarray:
     try:
         arr = np.array(value, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got a number too large for a float)") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be an array of non-negative numbers (got {value!r})") from exc
     if arr.ndim == 0:
@@ -127,7 +131,7 @@ def _as_positive_int(name: str, value) -> int:
         raise TypeError(f"{name} must be an integer (got {value!r})")
     if int(value) < 1:
         raise ValueError(f"{name} must be >= 1 (got {int(value)})")
-    return int(value)
+    return _as_int(name, value)
 
 
 # --------------------------------------------------------------------------- hard constraints
@@ -199,7 +203,11 @@ def _zero_division(value) -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"zero_division must be None or a real number (got {value!r})")
-    return float(value)
+    try:
+        return float(value)  # NaN is allowed: it marks an undefined ratio on request
+    except OverflowError:
+        raise ValueError("zero_division must be a float (got an integer too large for one)"
+                         ) from None
 
 
 def hard_constraint_scores(true, predicted, *, zero_division=None) -> HardConstraintScores:
@@ -550,6 +558,7 @@ def visitation_counts(trajectories, *, n_states, n_actions) -> np.ndarray:
     """
     n_states = _as_positive_int("n_states", n_states)
     n_actions = _as_positive_int("n_actions", n_actions)
+    _check_size(f"n_states={n_states} x n_actions={n_actions}", n_states * n_actions)
     if is_flat_set(trajectories) and hasattr(trajectories, "states") and hasattr(trajectories, "actions"):
         s = np.asarray(trajectories.states)
         a = np.asarray(trajectories.actions)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
-from .mdp import MDP, _as_float, _as_int, _as_real
+from .mdp import MDP, _as_float, _as_int, _as_real, _check_size
 from ._repr import compact_repr, iterations, spread
 
 __all__ = [
@@ -207,8 +207,8 @@ def greedy_policy(q_values, *, atol=1e-9):
     Parameters
     ----------
     q_values : array_like, shape (..., n_actions)
-    atol : float
-        Actions within ``atol`` of the best count as maximising.
+    atol : float, default 1e-9
+        Actions within ``atol`` (>= 0) of the best count as maximising.
 
     Returns
     -------
@@ -220,6 +220,10 @@ def greedy_policy(q_values, *, atol=1e-9):
     [[0.5, 0.5, 0.0]]
     """
     q = _as_float("q_values", q_values)
+    atol = _as_real("atol", atol, low=0.0)
+    if q.ndim < 1 or q.shape[-1] < 1:
+        raise ValueError(f"q_values must have at least one action on its last axis (got shape "
+                         f"{q.shape})")
     best = q.max(axis=-1, keepdims=True)
     mask = (q >= best - atol).astype(np.float64)
     return mask / mask.sum(axis=-1, keepdims=True)
@@ -299,6 +303,8 @@ def soft_value_iteration(mdp, *, horizon=None, max_iter=10_000, tol=1e-8):
     r_bar = mdp.expected_rewards()
     if horizon is not None:
         horizon = _as_int("horizon", horizon)
+        _check_size(f"horizon={horizon} (x {mdp.n_states} states x {mdp.n_actions} actions)",
+                    horizon * mdp.n_states * mdp.n_actions)
         v, q, pol = _kernels.soft_value_iteration_finite(
             mdp.next_states, mdp.probs, r_bar, mdp.terminal, mdp.discount, horizon
         )

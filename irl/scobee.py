@@ -99,6 +99,9 @@ def _candidate_mask(candidates, n_features):
     if candidates is None:
         return np.ones(n_features, dtype=bool)
     arr = np.asarray(candidates)
+    if arr.size == 0:
+        raise ValueError("candidates must name at least one feature (got none); pass None to "
+                         "consider every feature")
     if arr.dtype == bool:
         if arr.shape != (n_features,):
             raise ValueError(f"candidates as a mask must have shape ({n_features},) (got {arr.shape})")
@@ -110,6 +113,13 @@ def _candidate_mask(candidates, n_features):
         raise ValueError(f"candidates must be feature indices in [0, {n_features}) (got {bad})")
     mask = np.zeros(n_features, dtype=bool)
     mask[arr] = True
+    return mask
+
+
+def _nonempty(mask):
+    if not mask.any():
+        raise ValueError("candidates must name at least one feature (got none); pass None to "
+                         "consider every feature")
     return mask
 
 
@@ -441,7 +451,7 @@ def infer_hard_constraints(
         kl_threshold = _as_real("kl_threshold", kl_threshold, low=0.0)
     if max_constraints is not None:
         max_constraints = _as_int("max_constraints", max_constraints, low=0)
-    cand = _candidate_mask(candidates, mdp.n_features)
+    cand = _nonempty(_candidate_mask(candidates, mdp.n_features))
 
     base = mdp.replace(discount=1.0)
     trans = _Transitions(base)

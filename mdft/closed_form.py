@@ -39,7 +39,7 @@ from scipy import special
 
 from ._export import builtin, fmt, labels_for, table, to_json
 from ._repr import compact_repr
-from ._validation import as_count
+from ._validation import MAX_STEPS, as_count
 from .model import MDFTModel, warn_if_growing
 
 __all__ = [
@@ -129,7 +129,7 @@ def preference_moments(model, n_steps):
     80.92
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
     S = np.asarray(model.S)
     mu = model.valence_mean
     phi = model.valence_covariance
@@ -219,7 +219,7 @@ def choice_probabilities(model, n_steps):
     1.0
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
     mean, cov = preference_moments(model, n_steps)
     return _probabilities_from_moments(mean, cov)
 
@@ -630,7 +630,7 @@ def mixture_choice_probabilities(model, n_steps, *, n_sequences=20_000, rng=None
     n_steps : int
         Deliberation time ``T``, at least 1.
     n_sequences : int, default 20000
-        Attention sequences to sample, at least 100.
+        Attention sequences to sample, at least 100 and at most 10,000,000.
     rng : None, int or numpy.random.Generator
         Source of the attention sequences.
 
@@ -657,8 +657,8 @@ def mixture_choice_probabilities(model, n_steps, *, n_sequences=20_000, rng=None
     (True, True)
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
-    n_sequences = as_count("n_sequences", n_sequences, low=100)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
+    n_sequences = as_count("n_sequences", n_sequences, low=100, high=10_000_000)
     n = model.n_options
     if n > 3:
         raise ValueError(

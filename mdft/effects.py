@@ -22,7 +22,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from ._export import builtin, describe_stopping, fmt, stopping_dict, table, to_json
-from ._validation import as_count, as_float_array, as_scalar
+from ._validation import MAX_SAMPLES, as_count, as_float_array, as_scalar
 from .closed_form import choice_probabilities
 from .model import MDFTModel
 from .simulate import FixedTime, Threshold, simulate
@@ -43,6 +43,9 @@ __all__ = [
 #: Preference threshold of the canonical parameter set (Hotaling et al. 2010).
 CANONICAL_THETA = 17.5
 _DEFAULT_MAX_STEPS = 10_000
+#: Fewest Monte Carlo trials per option set: with fewer, the binomial standard errors of
+#: the shares are too coarse to test an effect (and a share can be 0 by chance alone).
+_MIN_SAMPLES = 100
 _MEASURES = ("relative_share", "margin")
 _METHODS = ("monte_carlo", "analytic")
 
@@ -530,7 +533,8 @@ def context_effects(
     stopping : FixedTime or Threshold, optional
         Stopping rule; :func:`default_stopping` (threshold 17.5) by default.
     n_samples : int, default 20_000
-        Monte Carlo trials per option set (ternary and binary each).
+        Monte Carlo trials per option set (ternary and binary each), at least 100 (fewer
+        cannot give a standard error worth the name) and at most 100,000,000.
     method : {"monte_carlo", "analytic"}, default "monte_carlo"
         ``"analytic"`` uses :func:`mdft.choice_probabilities` (the Gaussian
         closed form) for fixed time and :func:`mdft.threshold_probabilities`
@@ -578,7 +582,7 @@ def context_effects(
         raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
     criterion = as_scalar("criterion", criterion, low=0.0)
     if method == "monte_carlo":
-        n_samples = as_count("n_samples", n_samples, low=1)
+        n_samples = as_count("n_samples", n_samples, low=_MIN_SAMPLES, high=MAX_SAMPLES)
         n_trajectories = as_count("n_trajectories", n_trajectories, low=0)
         gen = np.random.default_rng(rng)
         run = _MonteCarlo(stopping, n_samples, gen)
@@ -715,7 +719,12 @@ def _evaluate(scenario, tern, bina, stopping, method, n_samples, criterion) -> E
 def _relative_share(p_target, p_rival, shares: _Shares):
     total = p_target + p_rival
     if total <= 0:
-        return math.nan, math.nan
+        how = (f"in {shares.n_samples:,} trials" if shares.n_samples
+               else "with positive probability")
+        raise ValueError(
+            f"the relative share is undefined: neither the target nor its rival was chosen "
+            f"{how}; raise n_samples or check the scenario"
+        )
     r = float(p_target / total)
     if shares.n_samples == 0:
         return r, 0.0

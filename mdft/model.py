@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 
 from ._export import builtin, fmt, labels_for, table, to_json
-from ._validation import as_attention, as_float_array, as_scalar
+from ._validation import MAX_OPTIONS, as_attention, as_count, as_float_array, as_scalar
 
 __all__ = [
     "GROWTH_LIMIT",
@@ -92,7 +92,7 @@ def contrast_matrix(n_options: int) -> np.ndarray:
     Parameters
     ----------
     n_options : int
-        Number of options, at least 2.
+        Number of options, at least 2 and at most 1,000 (``MAX_OPTIONS``).
 
     Returns
     -------
@@ -111,6 +111,7 @@ def contrast_matrix(n_options: int) -> np.ndarray:
         raise TypeError(f"n_options must be an integer (got {n_options!r})")
     if n_options < 2:
         raise ValueError(f"n_options must be >= 2 (got {n_options}); MDFT compares options")
+    n_options = as_count("n_options", n_options, low=2, high=MAX_OPTIONS)
     C = np.full((n_options, n_options), -1.0 / (n_options - 1))
     np.fill_diagonal(C, 1.0)
     return C
@@ -142,9 +143,20 @@ def distance_matrix(M, *, beta: float) -> np.ndarray:
     """
     M = as_float_array("M", M, ndim=2)
     beta = as_scalar("beta", beta, low=0.0)
-    diff = M[:, None, :] - M[None, :, :]
-    along = diff.sum(axis=2) ** 2 / M.shape[1]
-    return (diff**2).sum(axis=2) + (beta - 1.0) * along
+    if M.shape[1] < 1:
+        raise ValueError(f"M must have at least 1 attribute (column) (got shape {M.shape})")
+    if M.shape[0] > MAX_OPTIONS:
+        raise ValueError(f"M must have at most {MAX_OPTIONS:,} options (rows) (got {M.shape[0]:,})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        diff = M[:, None, :] - M[None, :, :]
+        along = diff.sum(axis=2) ** 2 / M.shape[1]
+        D = (diff**2).sum(axis=2) + (beta - 1.0) * along
+    if not np.all(np.isfinite(D)):
+        raise ValueError(
+            f"M and beta={beta:g} give distances between options too large for floating point "
+            f"(largest |M| = {np.abs(M).max():.3g}); rescale M or lower beta"
+        )
+    return D
 
 
 def feedback_matrix(D, *, phi1: float, phi2: float) -> np.ndarray:
@@ -178,9 +190,15 @@ def feedback_matrix(D, *, phi1: float, phi2: float) -> np.ndarray:
            [-0.0122,  0.95  ]])
     """
     D = as_float_array("D", D, ndim=2)
+    if D.shape[0] != D.shape[1]:
+        raise ValueError(f"D must be a square matrix (got shape {D.shape})")
     phi1 = as_scalar("phi1", phi1, low=0.0)
     phi2 = as_scalar("phi2", phi2, low=0.0)
-    return np.eye(D.shape[0]) - phi2 * np.exp(-phi1 * D**2)
+    if phi1 == 0.0:  # exp(-0 * D**2) = 1, also where D**2 overflows
+        return np.eye(D.shape[0]) - phi2
+    with np.errstate(over="ignore", under="ignore"):
+        inhibition = np.exp(-phi1 * D**2)  # D**2 = inf gives exp(-inf) = 0, as it should
+    return np.eye(D.shape[0]) - phi2 * inhibition
 
 
 class MDFTModel:
@@ -313,8 +331,21 @@ class MDFTModel:
         P0 = np.zeros(n) if P0 is None else as_float_array("P0", P0, shape=(n,))
         self._P0 = _readonly(P0)
         self._standard_contrast = standard_contrast
-        self._spectral_radius = float(np.max(np.abs(np.linalg.eigvals(S))))
+        self._check_magnitudes()
+        self._spectral_radius = _spectral_radius(S)
         warn_if_growing(self._spectral_radius, stacklevel=3)
+
+    def _check_magnitudes(self) -> None:
+        """Refuse values whose valence moments overflow: every engine would return NaN."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            finite = (np.all(np.isfinite(self.valence_mean))
+                      and np.all(np.isfinite(self.valence_covariance)))
+        if not finite:
+            raise ValueError(
+                "M and sigma2 are too large for floating point: the mean or covariance of the "
+                f"valence overflows (largest |M| = {np.abs(self._M).max():.3g}, "
+                f"sigma2 = {self._sigma2:.3g}); rescale the evaluations"
+            )
 
     # ------------------------------------------------------------------ accessors
     M = property(lambda self: self._M, doc="Evaluations, shape (n_options, n_attributes).")
@@ -545,7 +576,27 @@ class MDFTModel:
         )
 
 
+def _spectral_radius(S: np.ndarray) -> float:
+    """``max |eig(S)|``; a ValueError, not a LinAlgError, where the eigenvalues do not converge."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            eigenvalues = np.linalg.eigvals(S)
+    except np.linalg.LinAlgError:
+        eigenvalues = np.array([np.nan])
+    radius = float(np.max(np.abs(eigenvalues)))
+    if not np.isfinite(radius):
+        raise ValueError(
+            f"S has entries too large for its eigenvalues to be computed (largest |S| = "
+            f"{np.abs(S).max():.3g}); the feedback matrix must be of moderate size"
+        )
+    return radius
+
+
 def _check_option_count(M: np.ndarray) -> None:
+    if M.shape[0] > MAX_OPTIONS:
+        raise ValueError(
+            f"M must have at most {MAX_OPTIONS:,} options (rows) (got {M.shape[0]:,})"
+        )
     if M.shape[0] < 2:
         raise ValueError(
             f"M must have at least 2 options (rows) (got shape {M.shape}); MDFT compares options"

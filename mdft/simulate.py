@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
-from ._validation import as_count, as_float_array, as_scalar
+from ._validation import MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, as_count, as_float_array, as_scalar
 from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
 from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
@@ -73,7 +73,7 @@ class FixedTime:
     Parameters
     ----------
     n_steps : int
-        Deliberation time ``T``, at least 1.
+        Deliberation time ``T``, at least 1 and at most 10,000,000 (``MAX_STEPS``).
 
     Examples
     --------
@@ -84,7 +84,7 @@ class FixedTime:
     n_steps: int
 
     def __post_init__(self):
-        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps))
+        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps, high=MAX_STEPS))
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class Threshold:
     theta : float
         Preference threshold, finite and > 0.
     max_steps : int, default 10_000
-        Longest deliberation. A trial that has not reached the threshold after
+        Longest deliberation, at most 10,000,000 (``MAX_STEPS``). A trial that has not reached the threshold after
         ``max_steps`` steps is *undecided*: it is counted in
         ``SimulationResult.n_undecided``, never dropped.
 
@@ -119,7 +119,8 @@ class Threshold:
     def __post_init__(self):
         object.__setattr__(self, "theta", as_scalar("theta", self.theta, low=0.0,
                                                     low_inclusive=False))
-        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps))
+        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps,
+                                                       high=MAX_STEPS))
 
 
 # ---------------------------------------------------------------- result
@@ -325,7 +326,7 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
     model : MDFTModel
         The model (``M``, ``w``, ``S``, ``C``, ``sigma2``, ``P0``).
     n_samples : int
-        Number of trials, at least 1.
+        Number of trials, at least 1 and at most 100,000,000 (``MAX_SAMPLES``).
     stopping : FixedTime or Threshold
         The stopping rule.
     rng : None, int, array_like or numpy.random.Generator, optional
@@ -377,7 +378,7 @@ def simulate(model, n_samples, *, stopping, rng=None, n_trajectories=0) -> Simul
     """
     if not isinstance(model, MDFTModel):
         raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
-    n_samples = as_count("n_samples", n_samples)
+    n_samples = as_count("n_samples", n_samples, high=MAX_SAMPLES)
     if not isinstance(stopping, (FixedTime, Threshold)):
         raise TypeError(
             "stopping must be mdft.FixedTime(n_steps) or mdft.Threshold(theta, max_steps) "
@@ -524,7 +525,7 @@ def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
     sigma2 : float, default 1.0
         Variance of the valence noise, >= 0.
     n_steps : int
-        Deliberation time, at least 1.
+        Deliberation time, at least 1 and at most 10,000,000.
     rng : None, int, array_like or numpy.random.Generator, optional
         Resolved with :func:`numpy.random.default_rng`. A batch is split into
         chunks whose number depends on ``n_decisions`` only, so the result does
@@ -554,10 +555,7 @@ def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
     ...             n_steps=100, rng=0).shape
     (2,)
     """
-    try:
-        Marr = np.asarray(M, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"M must be an array of real numbers (got {M!r})") from exc
+    Marr = as_float_array("M", M)
     if Marr.ndim not in (2, 3):
         raise ValueError(
             "M must have shape (n_options, n_attributes) or (n_decisions, n_options, "
@@ -572,6 +570,8 @@ def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
         raise ValueError(
             f"M must have at least 2 options (got shape {Marr.shape}); MDFT compares options"
         )
+    if n_options > MAX_OPTIONS:
+        raise ValueError(f"M must have at most {MAX_OPTIONS:,} options (got shape {Marr.shape})")
     if n_attributes < 1:
         raise ValueError(f"M must have at least 1 attribute (got shape {Marr.shape})")
     if not np.isfinite(batch).all():
@@ -581,7 +581,13 @@ def decide(M, w, *, phi1, phi2, beta, sigma2=1.0, n_steps, rng=None):
     phi2 = as_scalar("phi2", phi2, low=0.0)
     beta = as_scalar("beta", beta, low=0.0)
     sigma2 = as_scalar("sigma2", sigma2, low=0.0)
-    n_steps = as_count("n_steps", n_steps)
+    n_steps = as_count("n_steps", n_steps, high=MAX_STEPS)
+    spread = float(batch.max() - batch.min())
+    if spread > 1e70 or max(beta, 1.0) * n_attributes * spread**2 > 1e150:
+        raise ValueError(
+            f"M and beta={beta:g} give distances between options too large for floating point "
+            f"(M spans {spread:.3g}); rescale M or lower beta"
+        )
     generator = np.random.default_rng(rng)
     n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
     n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))
