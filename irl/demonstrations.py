@@ -21,6 +21,13 @@ from ._repr import compact_repr
 __all__ = ["Demonstrations", "sample_trajectories", "generate_demonstrations"]
 
 
+def _sequences(name, value):
+    """``value`` as a list, or a TypeError naming it when it is not a sequence."""
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"{name} must be a sequence (got {type(value).__name__})")
+    return list(value)
+
+
 def _ints(name, value):
     arr = np.asarray(value)
     if arr.size and not np.issubdtype(arr.dtype, np.integer):
@@ -165,7 +172,8 @@ class Demonstrations:
 
         This is the format of the paper's ``state_seq`` / ``action_seq`` lists.
         """
-        ss, aa = list(state_sequences), list(action_sequences)
+        ss = _sequences("state_sequences", state_sequences)
+        aa = _sequences("action_sequences", action_sequences)
         if len(ss) == 0:
             raise ValueError("demonstrations must hold at least one trajectory (got none)")
         if len(ss) != len(aa):
@@ -174,9 +182,13 @@ class Demonstrations:
             )
         st, ac, ns, lens = [], [], [], []
         for i, (s, a) in enumerate(zip(ss, aa)):
-            s, a = list(s), list(a)
+            s = _sequences(f"state_sequences[{i}]", s)
+            a = _sequences(f"action_sequences[{i}]", a)
             if len(a) == 0:
-                raise ValueError(f"every trajectory must have at least one transition (trajectory {i} is empty)")
+                raise ValueError(
+                    f"action_sequences[{i}] is empty: every trajectory must have at least one "
+                    "transition"
+                )
             if len(s) != len(a) + 1:
                 raise ValueError(
                     f"trajectory {i} must have one more state than actions (got {len(s)} states, {len(a)} actions)"

@@ -118,7 +118,7 @@ def _as_nonnegative(name: str, value) -> np.ndarray:
     if arr.ndim == 0:
         raise ValueError(f"{name} must be an array (got the scalar {arr.item()!r})")
     if arr.size == 0:
-        raise ValueError(f"{name} must not be empty")
+        raise ValueError(f"{name} must not be empty (got an array of size 0)")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite (got NaN or infinity)")
     if np.any(arr < 0):
