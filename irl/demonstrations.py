@@ -186,8 +186,8 @@ class Demonstrations:
             a = _sequences(f"action_sequences[{i}]", a)
             if len(a) == 0:
                 raise ValueError(
-                    f"action_sequences[{i}] is empty: every trajectory must have at least one "
-                    "transition"
+                    "action_sequences: every trajectory must have at least one transition "
+                    f"(trajectory {i} is empty)"
                 )
             if len(s) != len(a) + 1:
                 raise ValueError(

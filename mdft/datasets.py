@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import as_count
+from ._validation import MAX_SAMPLES, as_count
 from .fit import ChoiceData
 
 __all__ = ["SushiData", "ThesisProblem", "load_sushi", "load_thesis_set", "thesis_sets"]
@@ -197,7 +197,7 @@ def load_thesis_set(path, *, n_trials=10_000) -> list[ThesisProblem]:
     from scipy.io import loadmat
 
     p = _bundled_or_path(path)
-    n_trials = as_count("n_trials", n_trials)
+    n_trials = as_count("n_trials", n_trials, high=MAX_SAMPLES)
     try:
         raw = loadmat(p, squeeze_me=True, struct_as_record=False)
     except Exception as exc:  # scipy raises many types on a file that is not MATLAB data
@@ -257,7 +257,7 @@ def load_sushi(path=None, *, n_trials=5000) -> SushiData:
     ((10, 2), 10, 5)
     """
     p = THESIS_DATA / "pref_based" / "sushi.json" if path is None else _path(path, ".json")
-    n_trials = as_count("n_trials", n_trials)
+    n_trials = as_count("n_trials", n_trials, high=MAX_SAMPLES)
     try:
         raw = json.loads(p.read_bytes())
     except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError

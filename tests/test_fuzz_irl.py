@@ -160,7 +160,8 @@ def test_demonstration_counts(value):
     run(lambda: irl.sample_trajectories(MDP, SOFT.policy, 2, max_steps=value, rng=0),
         "max_steps")
     run(lambda: irl.generate_demonstrations(MDP, 2, horizon=value, rng=0), "horizon")
-    run(lambda: irl.visitation_counts(DEMOS, n_states=value, n_actions=8), "n_states")
+    run(lambda: irl.visitation_counts(DEMOS, n_states=value, n_actions=8), "n_states",
+        "a state outside")
 
 
 @FUZZ

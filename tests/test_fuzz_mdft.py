@@ -82,9 +82,9 @@ def test_model_parameters(name, value):
 @FUZZ
 @given(M=matrices)
 def test_model_evaluations(M):
-    run(lambda: use(model(M=M)), "M")
+    run(lambda: use(model(M=M)), "M", "w must have one weight per attribute")
     run(lambda: mdft.distance_matrix(M, beta=12.0), "M")
-    run(lambda: mdft.decide(M, W, n_steps=5, rng=0, **CANON), "M")
+    run(lambda: mdft.decide(M, W, n_steps=5, rng=0, **CANON), "M", "w must have shape")
 
 
 @FUZZ
