@@ -342,9 +342,9 @@ class MDFTModel:
                       and np.all(np.isfinite(self.valence_covariance)))
         if not finite:
             raise ValueError(
-                "M and sigma2 are too large for floating point: the mean or covariance of the "
-                f"valence overflows (largest |M| = {np.abs(self._M).max():.3g}, "
-                f"sigma2 = {self._sigma2:.3g}); rescale the evaluations"
+                "M, C and sigma2 are too large for floating point: the mean or covariance of "
+                f"the valence overflows (largest |M| = {np.abs(self._M).max():.3g}, largest "
+                f"|C| = {np.abs(self._C).max():.3g}, sigma2 = {self._sigma2:.3g}); rescale them"
             )
 
     # ------------------------------------------------------------------ accessors

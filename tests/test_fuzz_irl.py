@@ -5,31 +5,20 @@ Each test replaces one argument of a cheap, valid call by a drawn value; valid d
 """
 
 import json
-import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 import irl
+from fuzzing import FUZZ, odd, run, scalars
 from irl import GridWorld, io
 
-FUZZ = settings(max_examples=25, deadline=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                       HealthCheck.too_slow])
 WORLD = GridWorld(3, 0, 8, p_slip=0.0)
 MDP = WORLD.nominal_mdp
 SOFT = irl.soft_value_iteration(MDP, horizon=5)
 DEMOS = [([0, 3, 4, 5, 8], [2, 1, 1, 2])]
-
-huge_ints = st.sampled_from([2**63, -(2**63) - 1, 10**400, -(10**400), 2**64])
-odd = st.one_of(
-    st.none(), st.booleans(), st.text(max_size=5), huge_ints,
-    st.floats(allow_nan=True, allow_infinity=True),
-    st.lists(st.integers(-3, 3), max_size=3), st.just({"a": 1}), st.just(object()),
-)
-scalars = st.one_of(odd, st.floats(-1e300, 1e300), st.integers(-10, 10))
 counts = st.one_of(odd, st.integers(-5, 30), st.integers(10**9 + 1, 2**80))
 arrays = st.one_of(
     odd,
@@ -47,18 +36,6 @@ json_values = st.recursive(
         x, max_size=4),
     max_leaves=10,
 )
-
-
-def run(call, *names, errors=(ValueError, TypeError)):
-    """Call; a ValueError or TypeError must name one of ``names``; nothing else may escape."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            call()
-        except errors as exc:
-            message = str(exc)
-            assert any(name in message for name in names), (names, message)
-            assert len(message) > 20, message
 
 
 @FUZZ

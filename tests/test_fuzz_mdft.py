@@ -14,26 +14,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import given  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 import mdft  # noqa: E402
+from fuzzing import FUZZ, odd, run, scalars  # noqa: E402
 from mdft import datasets, plot  # noqa: E402
 
-FUZZ = settings(max_examples=25, deadline=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                       HealthCheck.too_slow])
 M3 = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
 W = [0.5, 0.5]
 CANON = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
-
-huge_ints = st.sampled_from([2**63, -(2**63) - 1, 10**400, -(10**400), 2**64])
-odd = st.one_of(
-    st.none(), st.booleans(), st.text(max_size=5), huge_ints,
-    st.floats(allow_nan=True, allow_infinity=True),
-    st.lists(st.integers(-3, 3), max_size=3), st.just({"a": 1}), st.just(object()),
-)
-scalars = st.one_of(odd, st.floats(-1e300, 1e300), st.integers(-10, 10))
 counts = st.one_of(odd, st.integers(-5, 60), st.integers(10**8 + 1, 2**80))
 reals = st.floats(allow_nan=True, allow_infinity=True, width=64)
 matrices = st.one_of(
@@ -45,18 +35,6 @@ matrices = st.one_of(
                      [[1e300, 1e300], [-1e300, 1e300]], [[1e200, 0.0], [0.0, 1e200]],
                      [["a", "b"], [1, 2]]]),
 )
-
-
-def run(call, *names, errors=(ValueError, TypeError)):
-    """Call; a ValueError or TypeError must name one of ``names``; nothing else may escape."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            call()
-        except errors as exc:
-            message = str(exc)
-            assert any(name in message for name in names), (names, message)
-            assert len(message) > 20, message
 
 
 def model(**changes):

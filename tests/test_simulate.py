@@ -504,8 +504,8 @@ def test_simulate_validates(compromise):
     with pytest.raises(ValueError, match=r"preferences overflow over n_steps=100000 steps"):
         mdft.simulate(compromise, 10, stopping=mdft.FixedTime(100_000))
     # Evaluations whose valence moments overflow are refused when the model is built.
-    with pytest.raises(ValueError, match=r"M and sigma2 are too large for floating point: the "
-                                         r"mean or covariance of the valence overflows"):
+    with pytest.raises(ValueError, match=r"M, C and sigma2 are too large for floating point: "
+                                         r"the mean or covariance of the valence overflows"):
         from_matrices([[1e308, 0.0], [0.0, 1e308]], [0.5, 0.5], np.eye(2))
     high = make_model(COMPROMISE, P0=[0.0, 5.0, 0.0])
     with pytest.raises(ValueError, match="model.P0 must lie below the threshold theta=5"):
