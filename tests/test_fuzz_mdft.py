@@ -194,3 +194,12 @@ def test_known_cases():
             warnings.simplefilter("ignore")
             with pytest.raises(error, match=match):
                 call()
+
+
+@FUZZ
+@given(name=st.sampled_from(["name", "labels", "M", "target", "rivals", "measure", "expected",
+                             "baseline", "direction", "w", "phi1", "phi2", "beta", "sigma2"]),
+       value=st.one_of(scalars, matrices))
+def test_context_effect_scenarios(name, value):
+    run(lambda: mdft.ATTRACTION.with_parameters(**{name: value}), name, "M and", "M, C",
+        "w must")
