@@ -90,10 +90,15 @@ def table(header: list, rows: list, *, left: int = 1) -> str:
 
 
 def labels_for(labels, n: int, name: str = "labels") -> list:
-    """``labels`` checked to hold ``n`` entries, or ``["0", "1", ...]``."""
+    """``labels`` checked to hold ``n`` entries, or ``["0", "1", ...]``.
+
+    Any sized iterable is accepted, a string of ``n`` characters too (as in
+    :func:`mdft.plot.plot_trajectories`).
+    """
     if labels is None:
         return [str(i) for i in range(n)]
-    if isinstance(labels, str) or not hasattr(labels, "__len__"):
+    if not (hasattr(labels, "__len__") and hasattr(labels, "__iter__")) or isinstance(
+            labels, dict):
         raise TypeError(f"{name} must be a sequence of {n} strings (got {labels!r})")
     if len(labels) != n:
         raise ValueError(f"{name} must hold one label per option, {n} (got {len(labels)})")

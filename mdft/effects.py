@@ -150,6 +150,8 @@ class ContextEffect:
                 f"M must have at least 2 options and 1 attribute (got shape {M.shape})"
             )
         object.__setattr__(self, "M", tuple(tuple(float(x) for x in row) for row in M))
+        if not hasattr(self.labels, "__iter__") or isinstance(self.labels, dict):
+            raise TypeError(f"labels must be a sequence of {n} strings (got {self.labels!r})")
         labels = tuple(str(label) for label in self.labels)
         if len(labels) != n:
             raise ValueError(

@@ -79,7 +79,8 @@ def test_simulation_result_summary_and_dict():
     with pytest.raises(ValueError, match=r"labels must hold one label per option, 3 \(got 2\)"):
         res.summary(labels=["A", "B"])
     with pytest.raises(TypeError, match="labels must be a sequence of 3 strings"):
-        res.summary(labels="ABC")
+        res.summary(labels=3)
+    assert res.summary(labels="ABX") == res.summary(labels=["A", "B", "X"])
 
 
 def test_mixture_result_export():
