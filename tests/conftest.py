@@ -22,3 +22,19 @@ def shared_data(tmp_path_factory) -> Path:
     shutil.copytree(ROOT / "mdft" / "data" / "thesis", root / "mdft-thesis")
     shutil.copytree(ROOT / "irl" / "data", root / "paper")
     return root
+
+
+@pytest.fixture(scope="session")
+def small_world():
+    """A 4 x 4 gridworld with slip and two constrained cells, for orchestration tests."""
+    import irl
+
+    return irl.GridWorld(4, 0, 15, constrained_states=(5, 6), p_slip=0.1)
+
+
+@pytest.fixture(scope="session")
+def small_prefs(small_world):
+    """Action preferences of ``small_world``'s nominal and true constrained MDPs."""
+    import orchestration
+
+    return orchestration.action_preferences(small_world.nominal_mdp, small_world.constrained_mdp)
