@@ -99,8 +99,8 @@ def warmup(progress=None) -> WarmupReport:
     """Compile, or load from the on-disk cache, every numba kernel of :mod:`mdft`.
 
     Runs each engine once on a tiny problem. In a fresh installation this compiles the
-    kernels (about 15 to 30 s in all, depending on the machine) and caches them on disk;
-    afterwards it only loads them (well under a second). Nothing else changes: results
+    kernels (about a minute of CPU time) and caches them on disk; afterwards it only loads
+    them (about a second). Nothing else changes: results
     of later calls are the same with or without a warm-up.
 
     Parameters
