@@ -6,7 +6,7 @@ Usage::
     python benchmarks/bench_thesis.py                    # all 50 problems of each fixed-time set
     python benchmarks/bench_thesis.py --with-M           # also fit M (multi-subset sets)
     python benchmarks/bench_thesis.py --threshold        # also the threshold (pref_based) sets
-    python benchmarks/bench_thesis.py --data PATH        # folder holding mdft-thesis/
+    python benchmarks/bench_thesis.py --data PATH        # another copy of the data sets
 
 For every problem of a set the attention weights ``w`` are estimated by maximum likelihood
 with the other parameters at their true values (the thesis's set-up for learning ``w``);
@@ -24,7 +24,6 @@ fixed-time sets at about 0.8 s per problem.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 import warnings
@@ -36,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mdft  # noqa: E402
-from mdft.datasets import load_sushi, load_thesis_set  # noqa: E402
+from mdft.datasets import THESIS_DATA, load_sushi, load_thesis_set  # noqa: E402
 
 THESIS_SETS = [  # the same ten file names under time_based/ and pref_based/
     "set_nopts3_ncomb1_nproblem50_no3.mat",
@@ -190,9 +189,10 @@ def main(argv=None):
     ap.add_argument("--no-sushi", action="store_true")
     ap.add_argument("--no-thesis", action="store_true", help="only the SUSHI part")
     ap.add_argument("--no-fixed-time", action="store_true", help="skip the time_based sets")
-    ap.add_argument("--data", default=os.environ.get("PYMDFT_DATA", ROOT.parent / "shared" / "data"))
+    ap.add_argument("--data", default=None,
+                    help="folder holding time_based/ and pref_based/ (default: the bundled sets)")
     args = ap.parse_args(argv)
-    folder = Path(args.data) / "mdft-thesis"
+    folder = THESIS_DATA if args.data is None else Path(args.data)
     n = args.problems or (3 if args.quick else 50)
 
     if not args.no_thesis:

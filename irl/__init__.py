@@ -5,6 +5,8 @@ Q-values and policies of a nominal MDP and of one whose soft constraints were
 learned from demonstrations. It does not depend on :mod:`mdft`.
 """
 
+from ._version import __version__
+
 from .mdp import MDP, TransitionFeatures
 from .gridworld import ACTIONS, ACTION_MOVES, COLOURS, GridWorld
 from .planning import (
@@ -45,6 +47,7 @@ from .io import (
     save_mesc_result,
 )
 from .scobee import HardConstraintResult, infer_hard_constraints
+from .warmup import WarmupReport, warmup
 
 __all__ = [
     "MDP",
@@ -92,4 +95,6 @@ __all__ = [
     "from_gymnasium",
     "HardConstraintResult",
     "infer_hard_constraints",
+    "WarmupReport",
+    "warmup",
 ]

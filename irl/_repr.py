@@ -31,6 +31,20 @@ def _short(value) -> str:
     return repr(value)
 
 
+def spread(values) -> str:
+    """``"min a, mean b, max c"`` of the finite entries of an array (``"none finite"`` if none)."""
+    arr = np.asarray(values, dtype=float)
+    arr = arr[np.isfinite(arr)]
+    if arr.size == 0:
+        return "none finite"
+    return f"min {arr.min():.4g}, mean {arr.mean():.4g}, max {arr.max():.4g}"
+
+
+def iterations(n_iter: int, converged: bool) -> str:
+    """``"converged after 12 iterations"`` or ``"NOT converged after 12 iterations"``."""
+    return f"{'converged' if converged else 'NOT converged'} after {n_iter} iterations"
+
+
 def compact_repr(self) -> str:
     """``ClassName(field=value, ...)`` with large arrays summarised by shape."""
     parts = [

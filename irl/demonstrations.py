@@ -15,12 +15,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
-from .mdp import MDP, _as_int
+from .mdp import MDP, _as_int, _check_size
 from .planning import check_policy, soft_value_iteration
 from ._repr import compact_repr
 from ._typing import ArrayLike, SeedLike
 
 __all__ = ["Demonstrations", "sample_trajectories", "generate_demonstrations"]
+
+
+def _sequences(name, value):
+    """``value`` as a list, or a TypeError naming it when it is not a sequence."""
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"{name} must be a sequence (got {type(value).__name__})")
+    return list(value)
 
 
 def _ints(name, value):
@@ -168,7 +175,8 @@ class Demonstrations:
 
         This is the format of the paper's ``state_seq`` / ``action_seq`` lists.
         """
-        ss, aa = list(state_sequences), list(action_sequences)
+        ss = _sequences("state_sequences", state_sequences)
+        aa = _sequences("action_sequences", action_sequences)
         if len(ss) == 0:
             raise ValueError("demonstrations must hold at least one trajectory (got none)")
         if len(ss) != len(aa):
@@ -177,9 +185,13 @@ class Demonstrations:
             )
         st, ac, ns, lens = [], [], [], []
         for i, (s, a) in enumerate(zip(ss, aa)):
-            s, a = list(s), list(a)
+            s = _sequences(f"state_sequences[{i}]", s)
+            a = _sequences(f"action_sequences[{i}]", a)
             if len(a) == 0:
-                raise ValueError(f"every trajectory must have at least one transition (trajectory {i} is empty)")
+                raise ValueError(
+                    "action_sequences: every trajectory must have at least one transition "
+                    f"(trajectory {i} is empty)"
+                )
             if len(s) != len(a) + 1:
                 raise ValueError(
                     f"trajectory {i} must have one more state than actions (got {len(s)} states, {len(a)} actions)"
@@ -285,6 +297,7 @@ def sample_trajectories(mdp: MDP, policy: ArrayLike, n: int, *, rng: SeedLike = 
     if max_steps is None:
         max_steps = pol.shape[0] if time_indexed else 1000
     max_steps = _as_int("max_steps", max_steps)
+    _check_size(f"n={n} trajectories of up to max_steps={max_steps} steps", n * max_steps)
     if start is None:
         p0 = mdp.start
     else:

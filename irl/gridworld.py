@@ -47,6 +47,8 @@ COLOURS = ("none", "blue", "green")
 
 
 def _index_tuple(name, values, high, names=None):
+    if isinstance(values, (str, bytes, dict)) or not hasattr(values, "__iter__"):
+        raise TypeError(f"{name} must be a sequence of indices (got {values!r})")
     out = []
     for v in values:
         if names is not None and isinstance(v, str):

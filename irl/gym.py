@@ -285,8 +285,10 @@ def transition_table(env: Any, *, start_distribution: ArrayLike | None = None) -
         name = "start_distribution"
     try:
         start = np.array(start_distribution, dtype=np.float64).ravel()
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be an array of probabilities (got {start_distribution!r})") from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        text = repr(start_distribution)
+        text = text if len(text) <= 80 else text[:77] + "..."
+        raise TypeError(f"{name} must be an array of probabilities (got {text})") from exc
     if start.shape != (n_states,):
         raise ValueError(f"{name} must have {n_states} entries (got {start.size})")
     if not np.all(np.isfinite(start)) or np.any(start < 0) or abs(start.sum() - 1.0) > 1e-6:

@@ -7,9 +7,12 @@ The paper's small data files ship with the package (``irl/data``, MIT licence).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
+import zipfile
+import zlib
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -57,11 +60,39 @@ _PAPER_FILES = {"scobee_example": "scobee_example_data.json", "random_10": "rand
 _RESULT_FORMAT = "pymdft.mesc_result"
 
 
-def _read_json(path, what):
-    path = Path(path)
+#: What a damaged or foreign file can raise while it is parsed; each becomes a ValueError
+#: that names the file.
+_PARSE_ERRORS = (KeyError, IndexError, AttributeError, TypeError, ValueError, EOFError,
+                 OverflowError, RecursionError, zipfile.BadZipFile, zlib.error)
+
+
+@contextlib.contextmanager
+def _reading(path, what):
+    """Turn any parsing failure inside the block into a ValueError naming the file."""
+    try:
+        yield
+    except _PARSE_ERRORS as exc:
+        if isinstance(exc, KeyError):
+            reason = f"the field {exc.args[0]!r} is missing"
+        elif isinstance(exc, RecursionError):
+            reason = "its JSON is nested too deeply"
+        else:
+            reason = str(exc) or type(exc).__name__
+        raise ValueError(f"file {str(path)!r} does not hold {what}: {reason}") from None
+
+
+def _check_path(path) -> Path:
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path must be a str or os.PathLike (got {type(path).__name__})")
+    return Path(path)
+
+
+def _read_json(path, kind, what):
+    path = _check_path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{what} file not found: {path}")
-    return json.loads(path.read_text())
+        raise FileNotFoundError(f"{kind} file not found: {path}")
+    with _reading(path, what):
+        return json.loads(path.read_bytes())
 
 
 def _packaged(name):
@@ -94,14 +125,26 @@ def load_paper_worlds(name: str = "scobee_example", *, path: PathLike | None = N
     10
     """
     if path is None:
-        if name not in _PAPER_FILES:
+        if not isinstance(name, str) or name not in _PAPER_FILES:
             raise ValueError(f"name must be one of {sorted(_PAPER_FILES)} (got {name!r})")
         entries = json.loads(_packaged(_PAPER_FILES[name]).read_text())
     else:
-        entries = _read_json(path, "world")
+        entries = _read_json(path, "world", "valid worlds")
     if isinstance(entries, dict):
         entries = [entries]
-    return [GridWorld.from_dict(e, **world_kwargs) for e in entries]
+    if path is None:
+        return [GridWorld.from_dict(e, **world_kwargs) for e in entries]
+    if not isinstance(entries, list):
+        raise ValueError(f"world file {str(path)!r} must hold a JSON object or a list of them "
+                         f"(got {type(entries).__name__})")
+    worlds = []
+    for k, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            raise ValueError(f"world file {str(path)!r}: entry {k} must be a JSON object "
+                             f"(got {type(entry).__name__})")
+        with _reading(path, "valid worlds"):
+            worlds.append(GridWorld.from_dict(entry, **world_kwargs))
+    return worlds
 
 
 def load_paper_demonstrations(*, path: PathLike | None = None) -> list[Demonstrations]:
@@ -125,12 +168,15 @@ def load_paper_demonstrations(*, path: PathLike | None = None) -> list[Demonstra
     data = (
         json.loads(_packaged("scobee_example_trajectories.json").read_text())
         if path is None
-        else _read_json(path, "demonstrations")
+        else _read_json(path, "demonstrations", "valid demonstrations")
     )
     out = []
-    for game in data:
-        for t in game["trajs"]:
-            out.append(Demonstrations.from_sequences(t["state_seq"], t["action_seq"]))
+    with _reading("packaged" if path is None else path, "valid demonstrations"):
+        if not isinstance(data, list):
+            raise TypeError(f"the file must hold a list of games (got {type(data).__name__})")
+        for game in data:
+            for t in game["trajs"]:
+                out.append(Demonstrations.from_sequences(t["state_seq"], t["action_seq"]))
     return out
 
 
@@ -180,11 +226,17 @@ def load_mesc_result(path: PathLike, nominal: MDP) -> MESCResult:
     """
     from .mesc import MESCResult
 
-    doc = _read_json(path, "result")
-    if doc.get("format") != _RESULT_FORMAT:
-        raise ValueError(f"{path} is not a MESC-IRL result file (format {doc.get('format')!r})")
+    doc = _read_json(path, "result", "a valid MESC-IRL result")
+    if not isinstance(doc, dict) or doc.get("format") != _RESULT_FORMAT:
+        found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise ValueError(f"{path} is not a MESC-IRL result file (format {found!r})")
     if not isinstance(nominal, MDP) or nominal.features is None:
         raise TypeError("nominal must be an irl.MDP with features")
+    with _reading(path, "a valid MESC-IRL result"):
+        return _result_from_doc(doc, path, nominal, MESCResult)
+
+
+def _result_from_doc(doc, path, nominal, MESCResult):
     names = tuple(doc["feature_names"])
     if names != tuple(nominal.features.names):
         raise ValueError(
@@ -233,7 +285,10 @@ def save_mdp(mdp: MDP, path: PathLike) -> None:
 
 def load_mdp(path: PathLike) -> MDP:
     """Read an MDP written by :func:`save_mdp` (example there); no pickle is involved."""
-    with np.load(path, allow_pickle=False) as z:
+    path = _check_path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"MDP file not found: {path}")
+    with _reading(path, "a valid MDP"), np.load(path, allow_pickle=False) as z:
         feats = None
         if "feature_sizes" in z:
             n_s, n_a, n_f = (int(v) for v in z["feature_sizes"])
@@ -272,8 +327,12 @@ def save_demonstrations(demonstrations: Demonstrations, path: PathLike) -> None:
 
 def load_demonstrations(path: PathLike) -> Demonstrations:
     """Read demonstrations written by :func:`save_demonstrations` (example there)."""
-    doc = _read_json(path, "demonstrations")
-    d = Demonstrations.from_sequences(doc["state_seq"], doc["action_seq"])
-    if "reached_terminal" in doc:
-        d = Demonstrations(d.offsets, d.states, d.actions, d.next_states, doc["reached_terminal"])
+    doc = _read_json(path, "demonstrations", "valid demonstrations")
+    with _reading(path, "valid demonstrations"):
+        if not isinstance(doc, dict):
+            raise TypeError(f"it must hold a JSON object (got {type(doc).__name__})")
+        d = Demonstrations.from_sequences(doc["state_seq"], doc["action_seq"])
+        if "reached_terminal" in doc:
+            d = Demonstrations(d.offsets, d.states, d.actions, d.next_states,
+                               doc["reached_terminal"])
     return d

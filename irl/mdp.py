@@ -44,6 +44,9 @@ _PROB_ATOL = 1e-8
 def _as_float(name, value, *, ndim=None, shape=None):
     try:
         arr = np.array(value, dtype=np.float64, order="C", copy=True)
+    except OverflowError:
+        raise ValueError(f"{name} must contain only finite values (got a number too large for "
+                         "a float)") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be an array of real numbers (got {type(value).__name__})") from exc
     if ndim is not None and arr.ndim != ndim:
@@ -77,7 +80,10 @@ def _as_index(name, value, *, ndim=None, high=None):
 def _as_real(name, value, *, low=None, high=None, low_open=False):
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
         raise TypeError(f"{name} must be a real number (got {value!r})")
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got an integer too large for a float)") from None
     if not np.isfinite(x):
         raise ValueError(f"{name} must be finite (got {x})")
     if low is not None and (x <= low if low_open else x < low):
@@ -87,13 +93,32 @@ def _as_real(name, value, *, low=None, high=None, low_open=False):
     return x
 
 
-def _as_int(name, value, *, low=1):
+#: Largest count accepted by the public API (iterations, horizons, trajectories, sizes).
+MAX_COUNT = 1_000_000_000
+#: Largest array (in values) that a horizon, a number of trajectories or a table may ask
+#: for: 100 million values, 800 MB of float64 (``docs/decisions.md``).
+MAX_VALUES = 100_000_000
+
+
+def _as_int(name, value, *, low=1, high=MAX_COUNT):
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
         raise TypeError(f"{name} must be an integer (got {value!r})")
     n = int(value)
     if n < low:
         raise ValueError(f"{name} must be an integer >= {low} (got {n})")
+    if n > high:
+        shown = f"{n:,}" if n < 10**30 else f"an integer of {n.bit_length()} bits"
+        raise ValueError(f"{name} must be an integer <= {high:,} (got {shown})")
     return n
+
+
+def _check_size(what, n_values):
+    """Refuse a request for more than :data:`MAX_VALUES` values, naming what asked for it."""
+    if n_values > MAX_VALUES:
+        raise ValueError(
+            f"{what} asks for {n_values:,} values, more than the limit of {MAX_VALUES:,} "
+            "(800 MB of float64); ask for less"
+        )
 
 
 def _readonly(arr):

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.special import rel_entr
 
 from ._validation import check_indices, is_flat_set, split_trajectory, trajectory_list
-from .mdp import _as_real
+from .mdp import _as_int, _as_real, _check_size
 from ._typing import ArrayLike
 
 if TYPE_CHECKING:
@@ -94,6 +94,8 @@ def _as_vector(name: str, value, what: str) -> np.ndarray:
     """``value`` as a new finite 1-d float array; ``what`` names its entries in the TypeError."""
     try:
         arr = np.array(value, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got a number too large for a float)") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be an array of {what} (got {value!r})") from exc
     if arr.ndim != 1:
@@ -114,12 +116,14 @@ def _as_probabilities(name: str, value) -> np.ndarray:
 def _as_nonnegative(name: str, value) -> np.ndarray:
     try:
         arr = np.array(value, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got a number too large for a float)") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be an array of non-negative numbers (got {value!r})") from exc
     if arr.ndim == 0:
         raise ValueError(f"{name} must be an array (got the scalar {arr.item()!r})")
     if arr.size == 0:
-        raise ValueError(f"{name} must not be empty")
+        raise ValueError(f"{name} must not be empty (got an array of size 0)")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite (got NaN or infinity)")
     if np.any(arr < 0):
@@ -132,7 +136,7 @@ def _as_positive_int(name: str, value) -> int:
         raise TypeError(f"{name} must be an integer (got {value!r})")
     if int(value) < 1:
         raise ValueError(f"{name} must be >= 1 (got {int(value)})")
-    return int(value)
+    return _as_int(name, value)
 
 
 # --------------------------------------------------------------------------- hard constraints
@@ -177,6 +181,23 @@ class HardConstraintScores:
     false_positive_rate: float
     false_discovery_rate: float
 
+    def summary(self) -> str:
+        """The confusion counts and the four rates, as text.
+
+        Examples
+        --------
+        >>> print(hard_constraint_scores([True, False, False], [True, True, False]).summary())
+        predicted constraints: 1 true positive, 1 false positive, 0 false negative, 1 true negative
+        precision 0.5000, recall 1.0000, false positive rate 0.5000, false discovery rate 0.5000
+        """
+        return (
+            f"predicted constraints: {self.n_true_positive} true positive, "
+            f"{self.n_false_positive} false positive, {self.n_false_negative} false negative, "
+            f"{self.n_true_negative} true negative\n"
+            f"precision {self.precision:.4f}, recall {self.recall:.4f}, false positive rate "
+            f"{self.false_positive_rate:.4f}, false discovery rate {self.false_discovery_rate:.4f}"
+        )
+
 
 def _ratio(num: int, den: int, default: float) -> float:
     return float(num) / float(den) if den > 0 else float(default)
@@ -187,7 +208,11 @@ def _zero_division(value) -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"zero_division must be None or a real number (got {value!r})")
-    return float(value)
+    try:
+        return float(value)  # NaN is allowed: it marks an undefined ratio on request
+    except OverflowError:
+        raise ValueError("zero_division must be a float (got an integer too large for one)"
+                         ) from None
 
 
 def hard_constraint_scores(true: ArrayLike, predicted: ArrayLike, *,
@@ -349,6 +374,25 @@ class SoftConstraintErrors:
     n_constrained: int
     n_unconstrained: int
     chi: float
+
+    def summary(self) -> str:
+        """The counts and the paper's shares, as text.
+
+        Examples
+        --------
+        >>> print(soft_constraint_errors([0, -50], [0.27, 0.82], [0.9, 0.8], chi=0.2).summary())
+        soft constraints at chi = 0.2, 2 candidates (1 constrained, 1 unconstrained)
+        false positives: 1 (0.5000 of all, 1.0000 of the unconstrained)
+        false negatives: 0 (0.0000 of all, 0.0000 of the constrained)
+        """
+        return (
+            f"soft constraints at chi = {self.chi:g}, {self.n_candidates} candidates "
+            f"({self.n_constrained} constrained, {self.n_unconstrained} unconstrained)\n"
+            f"false positives: {self.n_false_positive} ({self.false_positives:.4f} of all, "
+            f"{self.false_positive_share:.4f} of the unconstrained)\n"
+            f"false negatives: {self.n_false_negative} ({self.false_negatives:.4f} of all, "
+            f"{self.false_negative_share:.4f} of the constrained)"
+        )
 
 
 def soft_constraint_errors(true_cost: ArrayLike, zeta_true: ArrayLike, zeta_pred: ArrayLike, *,
@@ -524,6 +568,7 @@ def visitation_counts(trajectories: Demonstrations | Sequence[Any], *, n_states:
     """
     n_states = _as_positive_int("n_states", n_states)
     n_actions = _as_positive_int("n_actions", n_actions)
+    _check_size(f"n_states={n_states} x n_actions={n_actions}", n_states * n_actions)
     if is_flat_set(trajectories) and hasattr(trajectories, "states") and hasattr(trajectories, "actions"):
         s = np.asarray(trajectories.states)
         a = np.asarray(trajectories.actions)

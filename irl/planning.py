@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels
-from .mdp import MDP, _as_float, _as_int, _as_real
-from ._repr import compact_repr
+from .mdp import MDP, _as_float, _as_int, _as_real, _check_size
+from ._repr import compact_repr, iterations, spread
 from ._typing import ArrayLike
 
 __all__ = [
@@ -73,6 +73,21 @@ class PlanningResult:
     n_iter: int
     converged: bool
 
+    def summary(self) -> str:
+        """Size, convergence and the range of the values, as text.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> print(irl.value_iteration(world.nominal_mdp).summary())  # doctest: +ELLIPSIS
+        value iteration: 9 states x 8 actions, converged after ... iterations
+        values: min ..., mean ..., max ...
+        """
+        n_states, n_actions = self.q_values.shape
+        return (f"value iteration: {n_states} states x {n_actions} actions, "
+                f"{iterations(self.n_iter, self.converged)}\nvalues: {spread(self.values)}")
+
 
 @dataclass(frozen=True, eq=False)
 class SoftPlanningResult:
@@ -101,6 +116,32 @@ class SoftPlanningResult:
     n_iter: int
     converged: bool
 
+    def summary(self) -> str:
+        """Size, horizon, convergence, the range of the values and the policy's entropy.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> print(irl.soft_value_iteration(world.nominal_mdp, horizon=4).summary())
+        ... # doctest: +ELLIPSIS
+        soft value iteration: 9 states x 8 actions, horizon 4, converged after 4 iterations
+        values at the start: min ..., mean ..., max ...
+        policy entropy (nats): min ..., mean ..., max ...
+        """
+        n_states, n_actions = self.q_values.shape[-2:]
+        horizon = "infinite horizon" if self.horizon is None else f"horizon {self.horizon}"
+        start = self.values if self.values.ndim == 1 else self.values[0]
+        first = self.policy if self.policy.ndim == 2 else self.policy[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            entropy = -np.sum(np.where(first > 0, first * np.log(first), 0.0), axis=1)
+        return "\n".join([
+            f"soft value iteration: {n_states} states x {n_actions} actions, {horizon}, "
+            f"{iterations(self.n_iter, self.converged)}",
+            f"values at the start: {spread(start)}",
+            f"policy entropy (nats): {spread(entropy)}",
+        ])
+
 
 @dataclass(frozen=True, eq=False)
 class VisitationResult:
@@ -127,6 +168,30 @@ class VisitationResult:
     n_iter: int
     converged: bool
 
+    def summary(self) -> str:
+        """Total expected visits, the most visited states, and convergence, as text.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(3, 0, 2, p_slip=0.0)
+        >>> soft = irl.soft_value_iteration(world.nominal_mdp, horizon=4)
+        >>> print(irl.state_action_visitation(world.nominal_mdp, soft.policy).summary())
+        ... # doctest: +ELLIPSIS
+        visitation: 9 states x 8 actions, converged after ... iterations
+        expected transitions: ...
+        most visited states: ...
+        """
+        n_states, n_actions = self.state_action.shape
+        top = np.argsort(-self.states, kind="stable")[:5]
+        visited = ", ".join(f"{int(s)} ({self.states[s]:.3g})" for s in top if self.states[s] > 0)
+        return "\n".join([
+            f"visitation: {n_states} states x {n_actions} actions, "
+            f"{iterations(self.n_iter, self.converged)}",
+            f"expected transitions: {self.state_action.sum():.4g}",
+            f"most visited states: {visited or 'none'}",
+        ])
+
 
 def _warn(name, n_iter, tol):
     warnings.warn(
@@ -143,8 +208,8 @@ def greedy_policy(q_values: ArrayLike, *, atol: float = 1e-9) -> np.ndarray:
     Parameters
     ----------
     q_values : array_like, shape (..., n_actions)
-    atol : float
-        Actions within ``atol`` of the best count as maximising.
+    atol : float, default 1e-9
+        Actions within ``atol`` (>= 0) of the best count as maximising.
 
     Returns
     -------
@@ -156,6 +221,10 @@ def greedy_policy(q_values: ArrayLike, *, atol: float = 1e-9) -> np.ndarray:
     [[0.5, 0.5, 0.0]]
     """
     q = _as_float("q_values", q_values)
+    atol = _as_real("atol", atol, low=0.0)
+    if q.ndim < 1 or q.shape[-1] < 1:
+        raise ValueError(f"q_values must have at least one action on its last axis (got shape "
+                         f"{q.shape})")
     best = q.max(axis=-1, keepdims=True)
     mask = (q >= best - atol).astype(np.float64)
     return mask / mask.sum(axis=-1, keepdims=True)
@@ -236,6 +305,8 @@ def soft_value_iteration(mdp: MDP, *, horizon: int | None = None, max_iter: int 
     r_bar = mdp.expected_rewards()
     if horizon is not None:
         horizon = _as_int("horizon", horizon)
+        _check_size(f"horizon={horizon} (x {mdp.n_states} states x {mdp.n_actions} actions)",
+                    horizon * mdp.n_states * mdp.n_actions)
         v, q, pol = _kernels.soft_value_iteration_finite(
             mdp.next_states, mdp.probs, r_bar, mdp.terminal, mdp.discount, horizon
         )

@@ -102,6 +102,9 @@ def _candidate_mask(candidates, n_features):
     if candidates is None:
         return np.ones(n_features, dtype=bool)
     arr = np.asarray(candidates)
+    if arr.size == 0:
+        raise ValueError("candidates must name at least one feature (got none); pass None to "
+                         "consider every feature")
     if arr.dtype == bool:
         if arr.shape != (n_features,):
             raise ValueError(f"candidates as a mask must have shape ({n_features},) (got {arr.shape})")
@@ -113,6 +116,13 @@ def _candidate_mask(candidates, n_features):
         raise ValueError(f"candidates must be feature indices in [0, {n_features}) (got {bad})")
     mask = np.zeros(n_features, dtype=bool)
     mask[arr] = True
+    return mask
+
+
+def _nonempty(mask):
+    if not mask.any():
+        raise ValueError("candidates must name at least one feature (got none); pass None to "
+                         "consider every feature")
     return mask
 
 
@@ -273,6 +283,30 @@ class HardConstraintResult:
         """Number of inferred constraints (``len(constraints)``)."""
         return int(self.constraints.size)
 
+    def summary(self) -> str:
+        """The inferred constraints in order, with the KL divergence after each, as text.
+
+        Examples
+        --------
+        >>> from irl.gridworld import GridWorld
+        >>> world = GridWorld(3, 0, 2, p_slip=0.0)
+        >>> res = infer_hard_constraints(world.nominal_mdp, [([0, 3, 4, 5, 2], [2, 1, 1, 3])])
+        >>> print(res.summary())
+        4 hard constraints (stopped: kl_decrease), horizon 8, KL of the nominal model 8.4543
+          #  constraint               removed mass         KL
+          1  state 1                        0.9699     4.9516
+          2  action down_right              0.9121     2.5198
+          3  action up_right                0.8960     0.2561
+          4  action up_left                 0.1604     0.0812
+        """
+        rows = [f"{'#':>3s}  {'constraint':<24s} {'removed mass':>12s} {'KL':>10s}"]
+        rows += [f"{k + 1:3d}  {name:<24s} {m:12.4f} {kl:10.4f}"
+                 for k, (name, m, kl) in enumerate(zip(self.names, self.eliminated_mass,
+                                                       self.kl))]
+        return (f"{self.n_constraints} hard constraints (stopped: {self.stop_reason}), "
+                f"horizon {self.horizon}, KL of the nominal model {self.kl_initial:.4f}\n"
+                + "\n".join(rows))
+
     def penalties(self, penalty: float = _HARD_PENALTY) -> np.ndarray:
         """Penalty vector putting ``penalty`` on each inferred constraint, shape (n_features,).
 
@@ -420,7 +454,7 @@ def infer_hard_constraints(
         kl_threshold = _as_real("kl_threshold", kl_threshold, low=0.0)
     if max_constraints is not None:
         max_constraints = _as_int("max_constraints", max_constraints, low=0)
-    cand = _candidate_mask(candidates, mdp.n_features)
+    cand = _nonempty(_candidate_mask(candidates, mdp.n_features))
 
     base = mdp.replace(discount=1.0)
     trans = _Transitions(base)

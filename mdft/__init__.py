@@ -4,6 +4,8 @@ The engine is standalone: it knows nothing of MDPs or of the orchestration
 built on it. See ``docs/concepts.md`` for the equations and conventions.
 """
 
+from ._version import __version__
+
 from .model import (
     MDFTModel,
     UnstableFeedbackWarning,
@@ -31,6 +33,7 @@ from .effects import (
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
+from .warmup import WarmupReport, warmup
 
 __all__ = [
     "FixedTime",
@@ -62,4 +65,6 @@ __all__ = [
     "default_stopping",
     "ThresholdProbabilities",
     "threshold_probabilities",
+    "WarmupReport",
+    "warmup",
 ]

@@ -11,6 +11,12 @@ import numbers
 
 import numpy as np
 
+#: Size limits of the public API (``docs/decisions.md``): they keep a typo from asking for
+#: terabytes of memory or years of computation, far above any use in the literature.
+MAX_OPTIONS = 1_000
+MAX_STEPS = 10_000_000
+MAX_SAMPLES = 100_000_000
+
 
 def _describe(x) -> str:
     arr = np.asarray(x)
@@ -26,8 +32,13 @@ def as_float_array(name: str, value, *, ndim: int | None = None, shape=None) -> 
     """
     try:
         arr = np.array(value, dtype=np.float64, order="C", copy=True)
+    except OverflowError:
+        raise ValueError(f"{name} must contain only finite values (got a number too large "
+                         "for a float)") from None
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be an array of real numbers (got {value!r})") from exc
+        text = repr(value)
+        text = text if len(text) <= 80 else text[:77] + "..."
+        raise TypeError(f"{name} must be an array of real numbers (got {text})") from exc
     if ndim is not None and arr.ndim != ndim:
         raise ValueError(
             f"{name} must be a {ndim}-d array (got {arr.ndim}-d with shape {arr.shape})"
@@ -57,7 +68,11 @@ def as_scalar(
     arr = np.asarray(value)
     if arr.ndim != 0:
         raise TypeError(f"{name} must be a scalar (got {_describe(value)})")
-    x = float(arr)
+    try:
+        x = float(arr)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite (got an integer too large for a float)"
+                         ) from None
     if not np.isfinite(x):
         raise ValueError(f"{name} must be finite (got {x})")
     if low is not None:
@@ -70,20 +85,25 @@ def as_scalar(
     return x
 
 
-def as_count(name: str, value, *, low: int = 1) -> int:
-    """Return ``value`` as a Python int >= ``low``."""
+def as_count(name: str, value, *, low: int = 1, high: int | None = None) -> int:
+    """Return ``value`` as a Python int >= ``low`` (and <= ``high``)."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
         raise TypeError(f"{name} must be an integer (got {value!r})")
     n = int(value)
     if n < low:
         raise ValueError(f"{name} must be an integer >= {low} (got {n})")
+    if high is not None and n > high:
+        shown = f"{n:,}" if n < 10**30 else f"an integer of {n.bit_length()} bits"
+        raise ValueError(f"{name} must be an integer <= {high:,} (got {shown})")
     return n
 
 
 def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -> np.ndarray:
     """Check attention weights: shape (n_attributes,), non-negative, summing to one.
 
-    Returns a copy renormalised to sum to one exactly.
+    Returns a copy renormalised to sum to one; weights that already sum to one within
+    1e-12 are kept as they are, so that normalised weights pass through unchanged (a model
+    rebuilt from its own ``w`` has the same ``w``, bit for bit).
     """
     arr = as_float_array(name, w, ndim=1)
     if arr.shape[0] != n_attributes:
@@ -98,4 +118,4 @@ def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -
         raise ValueError(
             f"{name} must sum to 1 (got {total:.6g}); pass normalised attention weights"
         )
-    return arr / total
+    return arr if abs(total - 1.0) <= 1e-12 else arr / total

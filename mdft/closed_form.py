@@ -30,16 +30,20 @@ are broken uniformly at random, as in the simulation).
 
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Sequence
 
 import numpy as np
 from scipy import special
 
 from ._typing import SeedLike
-from ._validation import as_count
-from .model import MDFTModel
+from ._export import builtin, fmt, labels_for, table, to_json
+from ._repr import compact_repr
+from ._validation import MAX_STEPS, as_count
+from .model import MDFTModel, warn_if_growing
 
 __all__ = [
     "ClosedFormAccuracyWarning",
@@ -99,8 +103,14 @@ def preference_moments(model: MDFTModel, n_steps: int) -> tuple[np.ndarray, np.n
 
     Raises
     ------
-    FloatingPointError
+    ValueError
         If the moments overflow (a strongly expansive ``S`` over a very long horizon).
+
+    Warns
+    -----
+    UnstableFeedbackWarning
+        If preferences can grow more than tenfold over ``n_steps`` steps
+        (``rho(S) ** n_steps > 10``, ``docs/concepts.md``).
 
     Notes
     -----
@@ -122,18 +132,19 @@ def preference_moments(model: MDFTModel, n_steps: int) -> tuple[np.ndarray, np.n
     80.92
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
     S = np.asarray(model.S)
     mu = model.valence_mean
     phi = model.valence_covariance
     with np.errstate(over="ignore", invalid="ignore"):
         mean, cov = _moments(S, mu, phi, np.asarray(model.P0), n_steps)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-        raise FloatingPointError(
-            f"the moments of P(T) are not finite for n_steps={n_steps} (spectral radius of S "
-            f"{model.spectral_radius:.6g}): preferences overflow; use fewer steps or a "
-            "feedback matrix with spectral radius closer to 1"
+        raise ValueError(
+            f"n_steps={n_steps} is too long for this model: the moments of P(T) are not finite "
+            f"(spectral radius of S {model.spectral_radius:.6g}), preferences overflow; use "
+            "fewer steps or a feedback matrix with spectral radius closer to 1"
         )
+    warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
     return mean, cov
 
 
@@ -211,7 +222,7 @@ def choice_probabilities(model: MDFTModel, n_steps: int) -> np.ndarray:
     1.0
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
     mean, cov = preference_moments(model, n_steps)
     return _probabilities_from_moments(mean, cov)
 
@@ -560,9 +571,48 @@ class MixtureProbabilities:
     ([0.5, 0.5], 1000)
     """
 
+    __repr__ = compact_repr
+
     probabilities: np.ndarray
     standard_errors: np.ndarray
     n_sequences: int
+
+    def summary(self, labels: Sequence[str] | None = None) -> str:
+        """A text table of the probabilities and their standard errors.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+        ...                        beta=12.0)
+        >>> res = mdft.mixture_choice_probabilities(model, 20, n_sequences=1000, rng=0)
+        >>> print(res.summary(labels=["A", "B"]))
+        exact mixture over 1,000 attention sequences
+        option  P(choose)    s.e.
+        A          0.5018  0.0030
+        B          0.4982  0.0030
+        """
+        names = labels_for(labels, self.probabilities.shape[0])
+        rows = [[name, fmt(p), fmt(se)]
+                for name, p, se in zip(names, self.probabilities, self.standard_errors)]
+        return (f"exact mixture over {self.n_sequences:,} attention sequences\n"
+                + table(["option", "P(choose)", "s.e."], rows))
+
+    def to_dict(self) -> dict:
+        """The result as JSON-ready builtins.
+
+        Examples
+        --------
+        >>> MixtureProbabilities(np.array([0.5, 0.5]), np.array([0.01, 0.01]), 100).to_dict()
+        {'probabilities': [0.5, 0.5], 'standard_errors': [0.01, 0.01], 'n_sequences': 100}
+        """
+        return builtin({"probabilities": self.probabilities,
+                        "standard_errors": self.standard_errors,
+                        "n_sequences": self.n_sequences})
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(), path)
 
 
 def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences: int = 20_000,
@@ -584,7 +634,7 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     n_steps : int
         Deliberation time ``T``, at least 1.
     n_sequences : int, default 20000
-        Attention sequences to sample, at least 100.
+        Attention sequences to sample, at least 100 and at most 10,000,000.
     rng : None, int or numpy.random.Generator
         Source of the attention sequences.
 
@@ -611,8 +661,8 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     (True, True)
     """
     _check_model(model)
-    n_steps = as_count("n_steps", n_steps, low=1)
-    n_sequences = as_count("n_sequences", n_sequences, low=100)
+    n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
+    n_sequences = as_count("n_sequences", n_sequences, low=100, high=10_000_000)
     n = model.n_options
     if n > 3:
         raise ValueError(
@@ -635,9 +685,11 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
         att_mean, att_cov = _moments(S, CM @ w, CM @ (np.diag(w) - np.outer(w, w)) @ CM.T,
                                      np.zeros(n), n_steps)
     if not all(np.all(np.isfinite(x)) for x in (base, noise, att_mean, att_cov)):
-        raise FloatingPointError(
-            f"the moments of P(T) are not finite for n_steps={n_steps}; preferences overflow"
+        raise ValueError(
+            f"n_steps={n_steps} is too long for this model: the moments of P(T) are not "
+            "finite, preferences overflow"
         )
+    warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
     # Attention sums of the sampled sequences: A(t+1) = S A(t) + C M e_{j(t+1)}.
     A = np.zeros((n_sequences, n))
     cum = np.cumsum(w)

@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
+import os
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from ._typing import SeedLike
-from ._validation import as_count, as_float_array, as_scalar
+from ._export import builtin, describe_stopping, fmt, stopping_dict, table, to_json
+from ._validation import MAX_SAMPLES, as_count, as_float_array, as_scalar
 from .closed_form import choice_probabilities
-from .model import MDFTModel, UnstableFeedbackWarning
+from .model import MDFTModel
 from .simulate import FixedTime, Threshold, simulate
 
 __all__ = [
@@ -44,6 +45,9 @@ __all__ = [
 #: Preference threshold of the canonical parameter set (Hotaling et al. 2010).
 CANONICAL_THETA = 17.5
 _DEFAULT_MAX_STEPS = 10_000
+#: Fewest Monte Carlo trials per option set: with fewer, the binomial standard errors of
+#: the shares are too coarse to test an effect (and a share can be 0 by chance alone).
+_MIN_SAMPLES = 100
 _MEASURES = ("relative_share", "margin")
 _METHODS = ("monte_carlo", "analytic")
 
@@ -148,6 +152,8 @@ class ContextEffect:
                 f"M must have at least 2 options and 1 attribute (got shape {M.shape})"
             )
         object.__setattr__(self, "M", tuple(tuple(float(x) for x in row) for row in M))
+        if not hasattr(self.labels, "__iter__") or isinstance(self.labels, dict):
+            raise TypeError(f"labels must be a sequence of {n} strings (got {self.labels!r})")
         labels = tuple(str(label) for label in self.labels)
         if len(labels) != n:
             raise ValueError(
@@ -199,14 +205,21 @@ class ContextEffect:
 
     def model(self) -> MDFTModel:
         """The MDFT model of the full option set."""
-        with warnings.catch_warnings():
-            # rho(S) >= 1 is expected for some canonical sets (docs/concepts.md, section 8).
-            warnings.simplefilter("ignore", UnstableFeedbackWarning)
-            return MDFTModel(self.M, self.w, **self.parameters)
+        return MDFTModel(self.M, self.w, **self.parameters)
 
     def binary_model(self) -> MDFTModel:
         """The MDFT model of the binary baseline (same parameters)."""
         return self.model().subset(list(self.baseline))
+
+    def to_dict(self) -> dict:
+        """The scenario's fields as JSON-ready builtins.
+
+        Examples
+        --------
+        >>> COMPROMISE.to_dict()["M"]
+        [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
+        """
+        return builtin({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
     def with_parameters(self, **changes: Any) -> "ContextEffect":
         """Return a copy with some fields replaced (e.g. other parameters).
@@ -333,6 +346,77 @@ class EffectResult:
         """The scenario's name."""
         return self.scenario.name
 
+    def __repr__(self) -> str:
+        return (
+            f"EffectResult(name={self.name!r}, effect_size={self.effect_size:.4g}, "
+            f"standard_error={self.standard_error:.4g}, z={self.z:.4g}, shown={self.shown})"
+        )
+
+    def summary(self) -> str:
+        """A text table of the choice shares with and without the third option, and the effect.
+
+        Examples
+        --------
+        >>> res = context_effects("attraction", n_samples=2000, rng=0)["attraction"]
+        >>> print(res.summary())  # doctest: +ELLIPSIS
+        attraction: adding D, dominated by A only, raises A's share relative to B
+        threshold 17.5 (at most 10,000 steps), monte_carlo, 2,000 trials per option set
+        option  ternary    s.e.  binary    s.e.
+        A        0.5...
+        B        0.4...
+        D        0.0...       -       -
+        relative_share: ... -> ..., effect +0.0... (s.e. 0.0..., z = ...): ...
+        """
+        sc = self.scenario
+        binary_at = {opt: k for k, opt in enumerate(sc.baseline)}
+        rows = []
+        for i, label in enumerate(sc.labels):
+            k = binary_at.get(i)
+            rows.append([label, fmt(self.ternary[i]), fmt(self.ternary_se[i]),
+                         "-" if k is None else fmt(self.binary[k]),
+                         "-" if k is None else fmt(self.binary_se[k])])
+        samples = (f"{self.n_samples:,} trials per option set" if self.n_samples
+                   else "no sampling error")
+        verdict = (f"shown at {self.criterion:g} s.e." if self.shown else "not shown")
+        if sc.measure == "margin":
+            measure = f"margin {fmt(self.ternary_measure)}"
+        else:
+            measure = (f"relative_share: {fmt(self.binary_measure)} -> "
+                       f"{fmt(self.ternary_measure)}")
+        return "\n".join([
+            f"{sc.name}: {sc.expected}",
+            f"{describe_stopping(self.stopping)}, {self.method}, {samples}",
+            table(["option", "ternary", "s.e.", "binary", "s.e."], rows),
+            f"{measure}, effect {fmt(self.effect_size, '+.4f')} "
+            f"(s.e. {fmt(self.standard_error)}, z = {fmt(self.z, '.1f')}): {verdict}",
+        ])
+
+    def to_dict(self, *, trajectories: bool = False) -> dict:
+        """The result as JSON-ready builtins (NaN, e.g. the binary measure of a margin,
+        becomes None).
+
+        Parameters
+        ----------
+        trajectories : bool, default False
+            Also export the recorded preference trajectories.
+
+        Examples
+        --------
+        >>> d = context_effects("compromise", n_samples=1000, rng=0)["compromise"].to_dict()
+        >>> d["scenario"]["name"], d["stopping"]["rule"], d["binary_measure"]
+        ('compromise', 'threshold', None)
+        """
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out["scenario"] = self.scenario.to_dict()
+        out["stopping"] = stopping_dict(self.stopping)
+        if not trajectories:
+            del out["trajectories"]
+        return builtin(out)
+
+    def to_json(self, path: str | os.PathLike | None = None, *, trajectories: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trajectories=trajectories), path)
+
 
 @dataclass(frozen=True)
 class ContextEffects:
@@ -373,6 +457,49 @@ class ContextEffects:
             raise KeyError(f"no scenario named {key!r}; available: {list(self.names)}")
         return self.results[key]
 
+    def summary(self) -> str:
+        """One row per scenario: the measure with and without the third option, the effect.
+
+        Examples
+        --------
+        >>> print(context_effects(n_samples=5000, rng=0).summary())  # doctest: +ELLIPSIS
+        scenario    measure         binary  ternary   effect    s.e.  ...  shown
+        similarity  relative_share  0.5...  yes
+        attraction  relative_share  0.4...  yes
+        compromise  margin               -   0.1...  yes
+        all three effects shown (criterion: 3 standard errors)
+        """
+        rows = [[r.name, r.scenario.measure, fmt(r.binary_measure), fmt(r.ternary_measure),
+                 fmt(r.effect_size, "+.4f"), fmt(r.standard_error), fmt(r.z, ".1f"),
+                 "yes" if r.shown else "no"] for r in self.results]
+        shown = sum(r.shown for r in self.results)
+        n = len(self.results)
+        words = {1: "one", 2: "two", 3: "three"}
+        verdict = (f"all {words.get(n, n)} effects shown" if shown == n and n > 1
+                   else f"{shown} of {n} effects shown")
+        criteria = sorted({r.criterion for r in self.results})
+        crit = ", ".join(f"{c:g}" for c in criteria)
+        return (table(["scenario", "measure", "binary", "ternary", "effect", "s.e.", "z",
+                       "shown"], rows, left=2)
+                + f"\n{verdict} (criterion: {crit} standard errors)")
+
+    def to_dict(self, *, trajectories: bool = False) -> dict:
+        """``{"results": [...], "all_shown": bool}``, each result as :meth:`EffectResult.to_dict`.
+
+        Examples
+        --------
+        >>> import json
+        >>> d = context_effects("similarity", n_samples=1000, rng=0).to_dict()
+        >>> [r["scenario"]["name"] for r in d["results"]], type(json.dumps(d))
+        (['similarity'], <class 'str'>)
+        """
+        return {"results": [r.to_dict(trajectories=trajectories) for r in self.results],
+                "all_shown": self.all_shown}
+
+    def to_json(self, path: str | os.PathLike | None = None, *, trajectories: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trajectories=trajectories), path)
+
 
 def default_stopping() -> Threshold:
     """The default stopping rule of :func:`context_effects`: ``Threshold(17.5)``.
@@ -410,7 +537,8 @@ def context_effects(
     stopping : FixedTime or Threshold, optional
         Stopping rule; :func:`default_stopping` (threshold 17.5) by default.
     n_samples : int, default 20_000
-        Monte Carlo trials per option set (ternary and binary each).
+        Monte Carlo trials per option set (ternary and binary each), at least 100 (fewer
+        cannot give a standard error worth the name) and at most 100,000,000.
     method : {"monte_carlo", "analytic"}, default "monte_carlo"
         ``"analytic"`` uses :func:`mdft.choice_probabilities` (the Gaussian
         closed form) for fixed time and :func:`mdft.threshold_probabilities`
@@ -458,7 +586,7 @@ def context_effects(
         raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
     criterion = as_scalar("criterion", criterion, low=0.0)
     if method == "monte_carlo":
-        n_samples = as_count("n_samples", n_samples, low=1)
+        n_samples = as_count("n_samples", n_samples, low=_MIN_SAMPLES, high=MAX_SAMPLES)
         n_trajectories = as_count("n_trajectories", n_trajectories, low=0)
         gen = np.random.default_rng(rng)
         run: _MonteCarlo | _Analytic = _MonteCarlo(stopping, n_samples, gen)
@@ -595,7 +723,12 @@ def _evaluate(scenario, tern, bina, stopping, method, n_samples, criterion) -> E
 def _relative_share(p_target, p_rival, shares: _Shares):
     total = p_target + p_rival
     if total <= 0:
-        return math.nan, math.nan
+        how = (f"in {shares.n_samples:,} trials" if shares.n_samples
+               else "with positive probability")
+        raise ValueError(
+            f"the relative share is undefined: neither the target nor its rival was chosen "
+            f"{how}; raise n_samples or check the scenario"
+        )
     r = float(p_target / total)
     if shares.n_samples == 0:
         return r, 0.0

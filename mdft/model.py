@@ -16,15 +16,20 @@ stated once here and in ``docs/concepts.md``:
 
 from __future__ import annotations
 
+import math
+import os
 import warnings
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ._typing import ArrayLike
-from ._validation import as_attention, as_float_array, as_scalar
+from ._export import builtin, fmt, labels_for, table, to_json
+from ._validation import MAX_OPTIONS, as_attention, as_count, as_float_array, as_scalar
 
 __all__ = [
+    "GROWTH_LIMIT",
+    "REFERENCE_STEPS",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",
@@ -33,12 +38,55 @@ __all__ = [
 ]
 
 
-class UnstableFeedbackWarning(RuntimeWarning):
-    """The spectral radius of the feedback matrix ``S`` is 1 or more.
+#: Growth of preferences, ``rho(S) ** n_steps``, past which an
+#: :class:`UnstableFeedbackWarning` is issued (``docs/concepts.md``, section 4).
+GROWTH_LIMIT = 10.0
 
-    Preferences then need not settle: they can grow without bound as the
-    deliberation goes on.
+#: Deliberation length assumed where no horizon is known (when a model is built):
+#: the fixed time of the paper's orchestrator and the order of the canonical
+#: threshold's response times. A model warns when ``rho(S) ** 100 > 10``, i.e.
+#: ``rho(S) > 1.0233``.
+REFERENCE_STEPS = 100
+
+
+class UnstableFeedbackWarning(RuntimeWarning):
+    """Preferences can grow by a meaningful factor over the deliberation.
+
+    Issued when ``rho(S) ** n_steps > GROWTH_LIMIT`` (10): by
+    :class:`MDFTModel` for the reference horizon of ``REFERENCE_STEPS`` (100)
+    steps, and by the fixed-time computations (:func:`mdft.simulate` with
+    :class:`mdft.FixedTime`, :func:`mdft.choice_probabilities`) for their own
+    ``n_steps``. A spectral radius at or barely above 1 (rounding, or the
+    canonical compromise set's 1.009) is not flagged.
     """
+
+
+def growth_factor(spectral_radius: float, n_steps: int) -> float:
+    """``rho(S) ** n_steps``: how much preferences can grow over ``n_steps`` steps (inf on overflow)."""
+    if spectral_radius <= 1.0:
+        return spectral_radius**n_steps
+    exponent = n_steps * math.log(spectral_radius)
+    return math.exp(exponent) if exponent < 700.0 else math.inf
+
+
+def warn_if_growing(spectral_radius: float, n_steps: int | None = None, *, stacklevel=3) -> None:
+    """Issue :class:`UnstableFeedbackWarning` where ``rho(S) ** n_steps > GROWTH_LIMIT``.
+
+    ``n_steps=None`` means no horizon is known: :data:`REFERENCE_STEPS` is used.
+    """
+    horizon = REFERENCE_STEPS if n_steps is None else n_steps
+    growth = growth_factor(spectral_radius, horizon)
+    if growth <= GROWTH_LIMIT:
+        return
+    where = (f"a deliberation of {horizon} steps (the reference length)" if n_steps is None
+             else f"n_steps={horizon} steps")
+    warnings.warn(
+        f"the feedback matrix S has spectral radius {spectral_radius:.6g}: preferences can grow "
+        f"by a factor of up to {growth:.3g} over {where}, more than {GROWTH_LIMIT:g}; lower phi2 "
+        "or raise phi1 for a stable model",
+        UnstableFeedbackWarning,
+        stacklevel=stacklevel + 1,
+    )
 
 
 def contrast_matrix(n_options: int) -> np.ndarray:
@@ -47,7 +95,7 @@ def contrast_matrix(n_options: int) -> np.ndarray:
     Parameters
     ----------
     n_options : int
-        Number of options, at least 2.
+        Number of options, at least 2 and at most 1,000 (``MAX_OPTIONS``).
 
     Returns
     -------
@@ -66,6 +114,7 @@ def contrast_matrix(n_options: int) -> np.ndarray:
         raise TypeError(f"n_options must be an integer (got {n_options!r})")
     if n_options < 2:
         raise ValueError(f"n_options must be >= 2 (got {n_options}); MDFT compares options")
+    n_options = as_count("n_options", n_options, low=2, high=MAX_OPTIONS)
     C = np.full((n_options, n_options), -1.0 / (n_options - 1))
     np.fill_diagonal(C, 1.0)
     return C
@@ -97,9 +146,20 @@ def distance_matrix(M: ArrayLike, *, beta: float) -> np.ndarray:
     """
     M = as_float_array("M", M, ndim=2)
     beta = as_scalar("beta", beta, low=0.0)
-    diff = M[:, None, :] - M[None, :, :]
-    along = diff.sum(axis=2) ** 2 / M.shape[1]
-    return (diff**2).sum(axis=2) + (beta - 1.0) * along
+    if M.shape[1] < 1:
+        raise ValueError(f"M must have at least 1 attribute (column) (got shape {M.shape})")
+    if M.shape[0] > MAX_OPTIONS:
+        raise ValueError(f"M must have at most {MAX_OPTIONS:,} options (rows) (got {M.shape[0]:,})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        diff = M[:, None, :] - M[None, :, :]
+        along = diff.sum(axis=2) ** 2 / M.shape[1]
+        D = (diff**2).sum(axis=2) + (beta - 1.0) * along
+    if not np.all(np.isfinite(D)):
+        raise ValueError(
+            f"M and beta={beta:g} give distances between options too large for floating point "
+            f"(largest |M| = {np.abs(M).max():.3g}); rescale M or lower beta"
+        )
+    return D
 
 
 def feedback_matrix(D: ArrayLike, *, phi1: float, phi2: float) -> np.ndarray:
@@ -133,9 +193,15 @@ def feedback_matrix(D: ArrayLike, *, phi1: float, phi2: float) -> np.ndarray:
            [-0.0122,  0.95  ]])
     """
     D = as_float_array("D", D, ndim=2)
+    if D.shape[0] != D.shape[1]:
+        raise ValueError(f"D must be a square matrix (got shape {D.shape})")
     phi1 = as_scalar("phi1", phi1, low=0.0)
     phi2 = as_scalar("phi2", phi2, low=0.0)
-    return np.eye(D.shape[0]) - phi2 * np.exp(-phi1 * D**2)
+    if phi1 == 0.0:  # exp(-0 * D**2) = 1, also where D**2 overflows
+        return np.eye(D.shape[0]) - phi2
+    with np.errstate(over="ignore", under="ignore"):
+        inhibition = np.exp(-phi1 * D**2)  # D**2 = inf gives exp(-inf) = 0, as it should
+    return np.eye(D.shape[0]) - phi2 * inhibition
 
 
 class MDFTModel:
@@ -168,7 +234,10 @@ class MDFTModel:
         from matrices).
     spectral_radius : float
         ``max |eig(S)|``. Preferences stay bounded in expectation only if it is
-        below 1; an :class:`UnstableFeedbackWarning` is issued otherwise.
+        below 1. An :class:`UnstableFeedbackWarning` is issued where it lets them
+        grow more than tenfold over a deliberation of 100 steps
+        (``rho(S) > 1.0233``); the fixed-time computations check their own
+        number of steps.
 
     Notes
     -----
@@ -191,7 +260,8 @@ class MDFTModel:
 
     Adding the compromise C = (2, 2) makes ``S`` slightly expansive (its
     spectral radius is about 1.009): lateral inhibition between close options
-    is what produces the compromise effect.
+    is what produces the compromise effect. Preferences can then grow by a
+    factor of ``1.009 ** 100 = 2.4`` over 100 steps, too little to warn about.
     """
 
     __slots__ = (
@@ -266,13 +336,20 @@ class MDFTModel:
         P0 = np.zeros(n) if P0 is None else as_float_array("P0", P0, shape=(n,))
         self._P0 = _readonly(P0)
         self._standard_contrast = standard_contrast
-        self._spectral_radius = float(np.max(np.abs(np.linalg.eigvals(S))))
-        if self._spectral_radius >= 1.0:
-            warnings.warn(
-                f"the feedback matrix S has spectral radius {self._spectral_radius:.6g} >= 1: "
-                "preferences can grow without bound; lower phi2 or raise phi1 for a stable model",
-                UnstableFeedbackWarning,
-                stacklevel=3,
+        self._check_magnitudes()
+        self._spectral_radius = _spectral_radius(S)
+        warn_if_growing(self._spectral_radius, stacklevel=3)
+
+    def _check_magnitudes(self) -> None:
+        """Refuse values whose valence moments overflow: every engine would return NaN."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            finite = (np.all(np.isfinite(self.valence_mean))
+                      and np.all(np.isfinite(self.valence_covariance)))
+        if not finite:
+            raise ValueError(
+                "M, C and sigma2 are too large for floating point: the mean or covariance of "
+                f"the valence overflows (largest |M| = {np.abs(self._M).max():.3g}, largest "
+                f"|C| = {np.abs(self._C).max():.3g}, sigma2 = {self._sigma2:.3g}); rescale them"
             )
 
     # ------------------------------------------------------------------ accessors
@@ -401,6 +478,98 @@ class MDFTModel:
         w = params.pop("w")
         return MDFTModel(M, w, **params)
 
+    # ----------------------------------------------------------------- export
+    def to_dict(self) -> dict:
+        """The model as JSON-ready builtins; :meth:`from_dict` rebuilds it.
+
+        A parametric model gives ``M``, ``w``, ``phi1``, ``phi2``, ``beta``, ``sigma2``
+        and ``P0``; a model built from matrices gives ``M``, ``w``, ``S``, ``C``,
+        ``sigma2`` and ``P0``.
+
+        Examples
+        --------
+        >>> m = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+        >>> m.to_dict()
+        {'M': [[1.0, 3.0], [3.0, 1.0]], 'w': [0.5, 0.5], 'sigma2': 1.0, 'P0': [0.0, 0.0], \
+'phi1': 0.022, 'phi2': 0.05, 'beta': 12.0}
+        >>> MDFTModel.from_dict(m.to_dict()).S.round(4).tolist()
+        [[0.95, -0.0122], [-0.0122, 0.95]]
+        """
+        out = {"M": self._M, "w": self._w, "sigma2": self._sigma2, "P0": self._P0}
+        if self.is_parametric:
+            out.update(phi1=self._phi1, phi2=self._phi2, beta=self._beta)
+        else:
+            out.update(S=self._S, C=self._C)
+        return builtin(out)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "MDFTModel":
+        """Rebuild a model from :meth:`to_dict`'s output (or a dict of the same keys).
+
+        Parameters
+        ----------
+        data : dict
+            ``M``, ``w`` and either ``phi1``, ``phi2``, ``beta`` or ``S`` (and
+            optionally ``C``); optionally ``sigma2`` and ``P0``.
+
+        Examples
+        --------
+        >>> MDFTModel.from_dict({"M": [[1, 3], [3, 1]], "w": [0.5, 0.5], "phi1": 0.022,
+        ...                      "phi2": 0.05, "beta": 12.0}).n_options
+        2
+        """
+        if not isinstance(data, dict):
+            raise TypeError(f"data must be a dict (got {type(data).__name__})")
+        parametric = {"M", "w", "phi1", "phi2", "beta", "sigma2", "P0"}
+        explicit = {"M", "w", "S", "C", "sigma2", "P0"}
+        allowed = explicit if "S" in data else parametric
+        required = {"M", "w", "S"} if "S" in data else {"M", "w", "phi1", "phi2", "beta"}
+        unknown = sorted(set(map(str, data)) - allowed)
+        if unknown:
+            raise ValueError(f"data has unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        missing = sorted(required - set(data))
+        if missing:
+            raise ValueError(f"data lacks the key(s) {missing}; required: {sorted(required)}")
+        kwargs = {k: v for k, v in data.items() if k not in ("M", "w")}
+        if "S" in data:
+            return cls.from_matrices(data["M"], data["w"], **kwargs)
+        return cls(data["M"], data["w"], **kwargs)
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given.
+
+        Read it back with ``MDFTModel.from_dict(json.loads(text))``.
+        """
+        return to_json(self.to_dict(), path)
+
+    def summary(self, labels: Sequence[str] | None = None) -> str:
+        """A text table of the options' evaluations and the model's parameters.
+
+        Examples
+        --------
+        >>> m = MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+        >>> print(m.summary(labels=["A", "B"]))
+        MDFT model: 2 options, 2 attributes
+        option  attr 0  attr 1
+        A       1.0000  3.0000
+        B       3.0000  1.0000
+        w       0.5000  0.5000
+        phi1=0.022, phi2=0.05, beta=12, sigma2=1, spectral radius of S 0.9622
+        """
+        names = labels_for(labels, self.n_options)
+        header = ["option"] + [f"attr {j}" for j in range(self.n_attributes)]
+        rows = [[name] + [fmt(x) for x in row] for name, row in zip(names, self._M)]
+        rows.append(["w"] + [fmt(x) for x in self._w])
+        params = (f"phi1={self._phi1:g}, phi2={self._phi2:g}, beta={self._beta:g}, "
+                  if self.is_parametric else "explicit S, ")
+        if np.any(self._P0 != 0):
+            params += f"P0={np.round(self._P0, 4).tolist()}, "
+        return "\n".join([
+            f"MDFT model: {self.n_options} options, {self.n_attributes} attributes",
+            table(header, rows),
+            f"{params}sigma2={self._sigma2:g}, spectral radius of S {self._spectral_radius:.4f}",
+        ])
+
     def __repr__(self) -> str:
         if self.is_parametric:
             params = f"phi1={self._phi1:g}, phi2={self._phi2:g}, beta={self._beta:g}, "
@@ -412,7 +581,27 @@ class MDFTModel:
         )
 
 
+def _spectral_radius(S: np.ndarray) -> float:
+    """``max |eig(S)|``; a ValueError, not a LinAlgError, where the eigenvalues do not converge."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            eigenvalues = np.linalg.eigvals(S)
+    except np.linalg.LinAlgError:
+        eigenvalues = np.array([np.nan])
+    radius = float(np.max(np.abs(eigenvalues)))
+    if not np.isfinite(radius):
+        raise ValueError(
+            f"S has entries too large for its eigenvalues to be computed (largest |S| = "
+            f"{np.abs(S).max():.3g}); the feedback matrix must be of moderate size"
+        )
+    return radius
+
+
 def _check_option_count(M: np.ndarray) -> None:
+    if M.shape[0] > MAX_OPTIONS:
+        raise ValueError(
+            f"M must have at most {MAX_OPTIONS:,} options (rows) (got {M.shape[0]:,})"
+        )
     if M.shape[0] < 2:
         raise ValueError(
             f"M must have at least 2 options (rows) (got shape {M.shape}); MDFT compares options"

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ._typing import ArrayLike
+from ._validation import as_scalar
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -58,9 +59,12 @@ def plot_choice_shares(ax: Axes, result: EffectResult, *, n_se: float = 2.0,
     >>> len(ax.patches)
     5
     """
-    n_se = float(n_se)
-    if not np.isfinite(n_se) or n_se < 0:
-        raise ValueError(f"n_se must be a finite number >= 0 (got {n_se})")
+    from .effects import EffectResult
+
+    _check_axes(ax)
+    if not isinstance(result, EffectResult):
+        raise TypeError(f"result must be an mdft.EffectResult (got {type(result).__name__})")
+    n_se = as_scalar("n_se", n_se, low=0.0)
     scenario = result.scenario
     n = scenario.n_options
     x = np.arange(n)
@@ -133,19 +137,29 @@ def plot_trajectories(ax: Axes, trajectories: ArrayLike | SimulationResult, *,
         if threshold is None:
             threshold = getattr(trajectories.stopping, "theta", None)
         trajectories = trajectories.trajectories  # type: ignore[assignment]
+    _check_axes(ax)
     if trajectories is None:
         raise ValueError(
             "trajectories is None; run the simulation with n_trajectories >= 1 to record some"
         )
-    P = np.asarray(trajectories, dtype=float)
+    try:
+        P = np.asarray(trajectories, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise TypeError("trajectories must be an array of real numbers, shape (n_trials, "
+                        f"n_steps + 1, n_options) (got {type(trajectories).__name__})") from None
     if P.ndim != 3 or P.shape[2] < 1:
         raise ValueError(
             "trajectories must have shape (n_trials, n_steps + 1, n_options) "
             f"(got shape {P.shape})"
         )
     n_trials, n_times, n_options = P.shape
+    alpha = as_scalar("alpha", alpha, low=0.0, high=1.0)
+    if threshold is not None:
+        threshold = as_scalar("threshold", threshold)
     if labels is None:
         labels = [f"option {i}" for i in range(n_options)]
+    if isinstance(labels, (int, float)) or not hasattr(labels, "__iter__"):
+        raise TypeError(f"labels must be a sequence of {n_options} strings (got {labels!r})")
     labels = [str(s) for s in labels]
     if len(labels) != n_options:
         raise ValueError(f"labels must have {n_options} entries, one per option (got {len(labels)})")
@@ -204,9 +218,18 @@ def plot_context_effects(results: ContextEffects | Sequence[EffectResult], *,
     >>> len(fig.axes)
     6
     """
-    results = list(results)
+    from .effects import EffectResult
+
+    try:
+        results = list(results)
+    except TypeError:
+        raise TypeError("results must be an mdft.ContextEffects or a sequence of EffectResult "
+                        f"(got {type(results).__name__})") from None
     if not results:
         raise ValueError("results must hold at least one EffectResult (got none)")
+    if not all(isinstance(r, EffectResult) for r in results):
+        bad = next(r for r in results if not isinstance(r, EffectResult))
+        raise TypeError(f"results must hold EffectResult objects (got {type(bad).__name__})")
     with_traj = any(r.trajectories is not None for r in results)
     n_rows = 2 if with_traj else 1
     if fig is None:
@@ -227,6 +250,11 @@ def plot_context_effects(results: ContextEffects | Sequence[EffectResult], *,
             ax.set_title(f"{res.scenario.name}: preference over time", fontsize="medium")
     fig.tight_layout()
     return fig
+
+
+def _check_axes(ax) -> None:
+    if not (hasattr(ax, "plot") and hasattr(ax, "bar") and hasattr(ax, "set_ylim")):
+        raise TypeError(f"ax must be a matplotlib Axes (got {type(ax).__name__})")
 
 
 def _third(scenario) -> int:

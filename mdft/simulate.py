@@ -19,15 +19,18 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+from typing import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import _kernels
 from ._typing import ArrayLike, SeedLike
-from ._validation import as_count, as_float_array, as_scalar
-from .model import MDFTModel
+from ._validation import MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, as_count, as_float_array, as_scalar
+from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
+from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
 
 __all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
 
@@ -73,7 +76,7 @@ class FixedTime:
     Parameters
     ----------
     n_steps : int
-        Deliberation time ``T``, at least 1.
+        Deliberation time ``T``, at least 1 and at most 10,000,000 (``MAX_STEPS``).
 
     Examples
     --------
@@ -84,7 +87,7 @@ class FixedTime:
     n_steps: int
 
     def __post_init__(self):
-        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps))
+        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps, high=MAX_STEPS))
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,7 @@ class Threshold:
     theta : float
         Preference threshold, finite and > 0.
     max_steps : int, default 10_000
-        Longest deliberation. A trial that has not reached the threshold after
+        Longest deliberation, at most 10,000,000 (``MAX_STEPS``). A trial that has not reached the threshold after
         ``max_steps`` steps is *undecided*: it is counted in
         ``SimulationResult.n_undecided``, never dropped.
 
@@ -119,7 +122,8 @@ class Threshold:
     def __post_init__(self):
         object.__setattr__(self, "theta", as_scalar("theta", self.theta, low=0.0,
                                                     low_inclusive=False))
-        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps))
+        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps,
+                                                       high=MAX_STEPS))
 
 
 # ---------------------------------------------------------------- result
@@ -239,6 +243,76 @@ class SimulationResult:
         np.add.at(pmf, (self.decision_steps[decided] - 1, self.choices[decided]), 1.0)
         return pmf / self.n_samples
 
+    def summary(self, labels: Sequence[str] | None = None) -> str:
+        """A text table: each option's share, standard error, count (and mean response time).
+
+        Parameters
+        ----------
+        labels : sequence of str, optional
+            One name per option; ``0, 1, ...`` by default.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> res = mdft.simulate(model, 1000, stopping=mdft.FixedTime(50), rng=0)
+        >>> print(res.summary(labels=["A", "B"]))  # doctest: +NORMALIZE_WHITESPACE
+        1,000 trials, fixed time, 50 steps (shortcut)
+        option     P(choose)    s.e.  count
+        A             0.5250  0.0158    525
+        B             0.4750  0.0158    475
+        undecided     0.0000              0
+        """
+        names = labels_for(labels, self.n_options)
+        with_rt = self.mean_response_times is not None
+        header = ["option", "P(choose)", "s.e.", "count"] + (["mean RT"] if with_rt else [])
+        rows = []
+        for i, name in enumerate(names):
+            row = [name, fmt(self.probabilities[i]), fmt(self.standard_errors[i]),
+                   int(self.counts[i])]
+            rows.append(row + ([fmt(self.mean_response_times[i], ".1f")] if with_rt else []))
+        rows.append(["undecided", fmt(self.p_undecided), "", self.n_undecided]
+                    + ([""] if with_rt else []))
+        title = f"{self.n_samples:,} trials, {describe_stopping(self.stopping)} ({self.method})"
+        return title + "\n" + table(header, rows)
+
+    def to_dict(self, *, trials: bool = False) -> dict:
+        """The result as JSON-ready builtins (NaN, e.g. the mean response time of an option
+        never chosen, becomes None).
+
+        Parameters
+        ----------
+        trials : bool, default False
+            Also export the per-trial arrays (``choices``, ``decision_steps``) and the
+            recorded trajectories, which can be large.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
+        ...                        phi1=0.022, phi2=0.05, beta=12.0)
+        >>> d = mdft.simulate(model, 100, stopping=mdft.FixedTime(10), rng=0).to_dict()
+        >>> d["stopping"], d["counts"], d["n_undecided"]
+        ({'rule': 'fixed_time', 'n_steps': 10}, [45, 55], 0)
+        """
+        out = {
+            "n_options": self.n_options, "n_samples": self.n_samples,
+            "stopping": stopping_dict(self.stopping), "method": self.method,
+            "probabilities": self.probabilities, "standard_errors": self.standard_errors,
+            "counts": self.counts, "n_undecided": self.n_undecided,
+            "p_undecided": self.p_undecided, "mean_response_times": self.mean_response_times,
+        }
+        if trials:
+            out.update(choices=self.choices, decision_steps=self.decision_steps,
+                       trajectories=self.trajectories,
+                       trajectory_choices=self.trajectory_choices)
+        return builtin(out)
+
+    def to_json(self, path: str | os.PathLike | None = None, *, trials: bool = False) -> str:
+        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
+        return to_json(self.to_dict(trials=trials), path)
+
     def _need_threshold(self, what: str) -> None:
         if not isinstance(self.stopping, Threshold):
             raise ValueError(
@@ -256,7 +330,7 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
     model : MDFTModel
         The model (``M``, ``w``, ``S``, ``C``, ``sigma2``, ``P0``).
     n_samples : int
-        Number of trials, at least 1.
+        Number of trials, at least 1 and at most 100,000,000 (``MAX_SAMPLES``).
     stopping : FixedTime or Threshold
         The stopping rule.
     rng : None, int, array_like or numpy.random.Generator, optional
@@ -308,7 +382,7 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
     """
     if not isinstance(model, MDFTModel):
         raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
-    n_samples = as_count("n_samples", n_samples)
+    n_samples = as_count("n_samples", n_samples, high=MAX_SAMPLES)
     if not isinstance(stopping, (FixedTime, Threshold)):
         raise TypeError(
             "stopping must be mdft.FixedTime(n_steps) or mdft.Threshold(theta, max_steps) "
@@ -369,6 +443,7 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
     shortcut = None
     if not threshold:
         _check_growth(model.spectral_radius, n_steps)
+        warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
         shortcut = _fixed_time_shortcut(S, CM, C, P0, model.sigma2, n_steps)
     if shortcut is not None:
         method = "shortcut"
@@ -455,7 +530,7 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
     sigma2 : float, default 1.0
         Variance of the valence noise, >= 0.
     n_steps : int
-        Deliberation time, at least 1.
+        Deliberation time, at least 1 and at most 10,000,000.
     rng : None, int, array_like or numpy.random.Generator, optional
         Resolved with :func:`numpy.random.default_rng`. A batch is split into
         chunks whose number depends on ``n_decisions`` only, so the result does
@@ -485,10 +560,7 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
     ...             n_steps=100, rng=0).shape
     (2,)
     """
-    try:
-        Marr = np.asarray(M, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"M must be an array of real numbers (got {M!r})") from exc
+    Marr = as_float_array("M", M)
     if Marr.ndim not in (2, 3):
         raise ValueError(
             "M must have shape (n_options, n_attributes) or (n_decisions, n_options, "
@@ -503,6 +575,8 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
         raise ValueError(
             f"M must have at least 2 options (got shape {Marr.shape}); MDFT compares options"
         )
+    if n_options > MAX_OPTIONS:
+        raise ValueError(f"M must have at most {MAX_OPTIONS:,} options (got shape {Marr.shape})")
     if n_attributes < 1:
         raise ValueError(f"M must have at least 1 attribute (got shape {Marr.shape})")
     if not np.isfinite(batch).all():
@@ -512,7 +586,13 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
     phi2 = as_scalar("phi2", phi2, low=0.0)
     beta = as_scalar("beta", beta, low=0.0)
     sigma2 = as_scalar("sigma2", sigma2, low=0.0)
-    n_steps = as_count("n_steps", n_steps)
+    n_steps = as_count("n_steps", n_steps, high=MAX_STEPS)
+    spread = float(batch.max() - batch.min())
+    if spread > 1e70 or max(beta, 1.0) * n_attributes * spread**2 > 1e150:
+        raise ValueError(
+            f"M and beta={beta:g} give distances between options too large for floating point "
+            f"(M spans {spread:.3g}); rescale M or lower beta"
+        )
     generator = np.random.default_rng(rng)
     n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
     n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))

@@ -32,3 +32,5 @@ __all__ = [
     "mdft_vs_wa_instance",
     "mdft_vs_wa",
 ]
+
+from mdft import __version__  # one version for the whole pymdft distribution

@@ -1,6 +1,7 @@
-"""Shared fixtures: a headless Matplotlib backend and the location of the shared data sets."""
+"""Shared fixtures: a headless Matplotlib backend and the data sets as the packages ship them."""
 
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -8,16 +9,19 @@ import pytest
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 ROOT = Path(__file__).resolve().parents[1]
-# The paper's worlds and the MDFT data sets live beside the repository (see README).
-SHARED_DATA = Path(os.environ.get("PYMDFT_DATA", ROOT.parent / "shared" / "data"))
 
 
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """Folder of the shared data sets; the test is skipped, with the reason, where it is absent."""
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"shared data folder not found at {SHARED_DATA}; set PYMDFT_DATA")
-    return SHARED_DATA
+def shared_data(tmp_path_factory) -> Path:
+    """A data folder laid out as ``data/`` beside the repository, built from the bundled copies.
+
+    ``mdft-thesis/`` is ``mdft/data/thesis`` and ``paper/`` is ``irl/data`` (the same files,
+    byte for byte), so every test of the data runs on a fresh clone and tests what is shipped.
+    """
+    root = tmp_path_factory.mktemp("data")
+    shutil.copytree(ROOT / "mdft" / "data" / "thesis", root / "mdft-thesis")
+    shutil.copytree(ROOT / "irl" / "data", root / "paper")
+    return root
 
 
 @pytest.fixture(scope="session")

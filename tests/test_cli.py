@@ -34,8 +34,8 @@ def test_simulate_prints_a_table(capsys):
         row = rows[o["label"]]
         assert row[-3:] == [f"{o['probability']:.4f}", f"{o['standard_error']:.4f}",
                             str(o["count"])]
-    # the compromise set has rho(S) ~ 1.009: a note on stderr, not a Python warning
-    assert "spectral radius 1.00893" in out.err
+    # the compromise set has rho(S) ~ 1.009, too little growth over 100 steps for a note
+    assert "spectral radius" not in out.err
 
 
 def test_simulate_json_is_complete_and_sums_to_one(capsys):
@@ -49,9 +49,8 @@ def test_simulate_json_is_complete_and_sums_to_one(capsys):
     assert data["seed"] == 0 and data["w"] == [0.5, 0.5]
     assert data["spectral_radius"] == pytest.approx(1.00893, abs=1e-5)
     # the numbers are those of the library run with the same model and seed
-    with pytest.warns(mdft.UnstableFeedbackWarning):
-        model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.05,
-                               beta=12.0, sigma2=1.0)
+    model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+                           beta=12.0, sigma2=1.0)
     res = mdft.simulate(model, 1000, stopping=mdft.FixedTime(100), rng=0)
     assert [o["count"] for o in data["options"]] == res.counts.tolist()
     np.testing.assert_allclose(probs, res.probabilities, rtol=0, atol=0)

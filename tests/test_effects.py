@@ -1,6 +1,7 @@
 """Context-effect scenarios: each canonical effect appears, measured in standard errors."""
 
 import math
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -151,12 +152,13 @@ def test_standard_errors_follow_the_binomial_and_multinomial_formulas():
     assert c.standard_error == pytest.approx(math.sqrt((0.75 - 0.15**2) / n))
 
 
-def test_no_choice_of_target_or_rival_gives_nan_and_not_shown():
+def test_no_choice_of_target_or_rival_is_an_error_not_a_nan():
     n = 100
     tern = _Shares(np.array([0.0, 0.0, 1.0]), np.zeros(3), None, n, 0.0)
     bina = _Shares(np.array([0.5, 0.5]), np.zeros(2), None, n, 0.0)
-    r = _evaluate(ATTRACTION, tern, bina, None, "monte_carlo", n, 3.0)
-    assert math.isnan(r.effect_size) and not r.shown
+    with pytest.raises(ValueError, match="the relative share is undefined: neither the target "
+                                         "nor its rival was chosen in 100 trials; raise n_samples"):
+        _evaluate(ATTRACTION, tern, bina, None, "monte_carlo", n, 3.0)
 
 
 # ----------------------------------------------------------------------------- scenarios
@@ -174,8 +176,13 @@ def test_canonical_scenarios_match_the_design():
 
 def test_compromise_model_is_slightly_expansive():
     assert COMPROMISE.model().spectral_radius == pytest.approx(1.0089, abs=1e-4)
-    with pytest.warns(mdft.UnstableFeedbackWarning):
+    # 1.0089 ** 100 = 2.4: not the meaningful growth that the warning is for
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", mdft.UnstableFeedbackWarning)
         mdft.MDFTModel(COMPROMISE.M, COMPROMISE.w, **COMPROMISE.parameters)
+        mdft.simulate(COMPROMISE.model(), 10, stopping=mdft.FixedTime(100), rng=0)
+    with pytest.warns(mdft.UnstableFeedbackWarning, match="n_steps=300 steps"):
+        mdft.simulate(COMPROMISE.model(), 10, stopping=mdft.FixedTime(300), rng=0)
 
 
 def test_scenario_is_frozen_and_hashable():
@@ -246,7 +253,9 @@ def test_context_effects_selects_scenarios():
         (dict(scenarios=5), TypeError, "scenarios must be a scenario name"),
         (dict(stopping=100), TypeError, "stopping must be mdft.FixedTime or mdft.Threshold"),
         (dict(method="exact"), ValueError, "method must be one of"),
-        (dict(n_samples=0), ValueError, "n_samples must be an integer >= 1"),
+        (dict(n_samples=0), ValueError, "n_samples must be an integer >= 100"),
+        (dict(n_samples=99), ValueError, r"n_samples must be an integer >= 100 \(got 99\)"),
+        (dict(n_samples=2**63), ValueError, "n_samples must be an integer <= 100,000,000"),
         (dict(n_samples=2.5), TypeError, "n_samples must be an integer"),
         (dict(n_trajectories=-1), ValueError, "n_trajectories must be an integer >= 0"),
         (dict(criterion=-1.0), ValueError, "criterion must be >= 0"),
@@ -274,12 +283,16 @@ def test_effect_statistics_are_consistent(k3, k2, scenario):
     n3, n2 = max(sum(k3), 1), max(sum(k2), 1)
     tern = _Shares(np.array(k3) / n3, np.zeros(3), np.array(k3), n3, 1 - sum(k3) / n3)
     bina = _Shares(np.array(k2) / n2, np.zeros(2), np.array(k2), n2, 1 - sum(k2) / n2)
+    if scenario.measure == "relative_share":
+        t, (rival,) = scenario.target, scenario.rivals
+        if k3[t] + k3[rival] == 0 or k2[0] + k2[1] == 0:  # the share is undefined
+            with pytest.raises(ValueError, match="the relative share is undefined"):
+                _evaluate(scenario, tern, bina, None, "monte_carlo", n3, 3.0)
+            return
     r = _evaluate(scenario, tern, bina, None, "monte_carlo", n3, 3.0)
     flipped = _evaluate(scenario.with_parameters(direction=-1), tern, bina, None,
                         "monte_carlo", n3, 3.0)
-    if math.isnan(r.effect_size):
-        assert not r.shown and not flipped.shown
-        return
+    assert not math.isnan(r.effect_size)
     assert -1.0 <= r.effect_size <= 1.0
     assert r.standard_error >= 0.0
     if r.standard_error > 0:

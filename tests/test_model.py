@@ -59,8 +59,7 @@ def test_feedback_matrix_definition():
 def test_valence_moments_match_sampling():
     """mu and Phi are the mean and covariance of V = C (M W + eps)."""
     rng = np.random.default_rng(1)
-    with pytest.warns(UnstableFeedbackWarning):
-        model = MDFTModel([A, B, (2.0, 2.0)], [0.3, 0.7], sigma2=0.5, **CANON)
+    model = MDFTModel([A, B, (2.0, 2.0)], [0.3, 0.7], sigma2=0.5, **CANON)
     n = 400_000
     j = rng.choice(2, size=n, p=model.w)
     V = (model.M[:, j].T + rng.normal(scale=np.sqrt(0.5), size=(n, 3))) @ model.C.T
@@ -77,12 +76,42 @@ def test_arrays_are_read_only_copies():
         model.S[0, 0] = 0.0
 
 
-def test_unstable_feedback_warns():
-    with pytest.warns(UnstableFeedbackWarning, match="spectral radius"):
-        MDFTModel([A, B, (2.0, 2.0)], [0.5, 0.5], **CANON)
+def test_unstable_feedback_warns_only_for_meaningful_growth():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        MDFTModel([A, B], [0.5, 0.5], **CANON)
+        MDFTModel([A, B], [0.5, 0.5], **CANON)  # rho = 0.962
+        MDFTModel([A, B, (2.0, 2.0)], [0.5, 0.5], **CANON)  # rho = 1.0089: 2.4-fold over 100
+        twins = MDFTModel([A, A, B], [0.5, 0.5], phi1=0.022, phi2=0.0, beta=12.0)
+        assert twins.spectral_radius >= 1.0  # 1 or a rounding above it
+        MDFTModel.from_matrices([A, B], [0.5, 0.5], S=np.eye(2) * (1 + 2**-52))
+        MDFTModel.from_matrices([A, B], [0.5, 0.5], S=np.eye(2) * 1.023)  # 1.023**100 = 9.7
+    with pytest.warns(UnstableFeedbackWarning,
+                      match=r"spectral radius 1.024: preferences can grow by a factor of up to "
+                            r"10.7 over a deliberation of 100 steps \(the reference length\), "
+                            r"more than 10; lower phi2"):
+        MDFTModel.from_matrices([A, B], [0.5, 0.5], S=np.eye(2) * 1.024)
+    with pytest.warns(UnstableFeedbackWarning, match="spectral radius"):
+        MDFTModel([A, B, (2.0, 2.0)], [0.5, 0.5], phi1=0.022, phi2=0.2, beta=12.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(rho=st.floats(0.5, 1.2), n_steps=st.integers(1, 2000))
+def test_growth_warning_follows_the_documented_rule(rho, n_steps):
+    """Warn exactly where rho ** n_steps > GROWTH_LIMIT, for the model and for fixed time."""
+    from mdft.model import GROWTH_LIMIT, REFERENCE_STEPS
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = MDFTModel.from_matrices([A, B], [0.5, 0.5], S=np.eye(2) * rho, sigma2=0.0)
+    assert bool(caught) == (rho**REFERENCE_STEPS > GROWTH_LIMIT)
+    if n_steps * np.log(max(rho, 1.0)) > 600:
+        return
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mdft.preference_moments(m, n_steps)
+    assert bool(caught) == (rho**n_steps > GROWTH_LIMIT)
+    if caught:
+        assert f"n_steps={n_steps} steps" in str(caught[0].message)
 
 
 def test_from_matrices_and_subset():
@@ -95,8 +124,7 @@ def test_from_matrices_and_subset():
 
 
 def test_subset_rebuilds_parametric_matrices():
-    with pytest.warns(UnstableFeedbackWarning):
-        full = MDFTModel([A, B, (2.0, 2.0)], [0.5, 0.5], **CANON)
+    full = MDFTModel([A, B, (2.0, 2.0)], [0.5, 0.5], **CANON)
     pair = full.subset([0, 1])
     direct = MDFTModel([A, B], [0.5, 0.5], **CANON)
     assert np.allclose(pair.S, direct.S)
@@ -180,8 +208,7 @@ def test_bad_input_from_matrices_and_helpers():
         model.subset([0.0, 1.0])
     with pytest.raises(TypeError, match=r"unknown parameter\(s\) \['theta'\]"):
         model.replace(theta=1.0)
-    with pytest.warns(UnstableFeedbackWarning):
-        custom = MDFTModel.from_matrices([A, B, A], [0.5, 0.5], S=np.eye(3), C=np.eye(3))
+    custom = MDFTModel.from_matrices([A, B, A], [0.5, 0.5], S=np.eye(3), C=np.eye(3))
     with pytest.raises(ValueError, match="subset needs the standard contrast matrix"):
         custom.subset([0, 1])
     with pytest.raises(ValueError, match="replace needs a parametric model"):

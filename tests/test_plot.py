@@ -40,7 +40,7 @@ def test_choice_shares_draws_one_bar_per_share_with_error_bars(results):
 
 
 def test_choice_shares_rejects_negative_n_se(results):
-    with pytest.raises(ValueError, match="n_se must be a finite number >= 0"):
+    with pytest.raises(ValueError, match=r"n_se must be >= 0.0 \(got -1.0\)"):
         plot_choice_shares(new_axes(), results["attraction"], n_se=-1)
 
 

@@ -503,9 +503,10 @@ def test_simulate_validates(compromise):
     # rho(S) = 1.0089 for the compromise set: 1.0089**100_000 overflows.
     with pytest.raises(ValueError, match=r"preferences overflow over n_steps=100000 steps"):
         mdft.simulate(compromise, 10, stopping=mdft.FixedTime(100_000))
-    with pytest.raises(ValueError, match=r"preferences overflow over n_steps=100 steps"):
-        huge = from_matrices([[1e308, 0.0], [0.0, 1e308]], [0.5, 0.5], np.eye(2))
-        mdft.simulate(huge, 10, stopping=mdft.FixedTime(100))
+    # Evaluations whose valence moments overflow are refused when the model is built.
+    with pytest.raises(ValueError, match=r"M, C and sigma2 are too large for floating point: "
+                                         r"the mean or covariance of the valence overflows"):
+        from_matrices([[1e308, 0.0], [0.0, 1e308]], [0.5, 0.5], np.eye(2))
     high = make_model(COMPROMISE, P0=[0.0, 5.0, 0.0])
     with pytest.raises(ValueError, match="model.P0 must lie below the threshold theta=5"):
         mdft.simulate(high, 10, stopping=mdft.Threshold(5.0))
