@@ -229,7 +229,11 @@ def _simulate_command(args) -> int:
     except (ValueError, TypeError) as exc:
         raise UsageError(str(exc)) from None
     seed = seed_of(args)
-    res = mdft.simulate(model, args.samples, stopping=stopping, rng=seed)
+    with warnings.catch_warnings(record=True) as caught:  # notes, not stray warning lines
+        warnings.simplefilter("always", mdft.UnstableFeedbackWarning)
+        res = mdft.simulate(model, args.samples, stopping=stopping, rng=seed)
+    notes = list(notes) + [str(c.message) for c in caught
+                           if issubclass(c.category, mdft.UnstableFeedbackWarning)]
     rts = getattr(res, "mean_response_times", None) if hasattr(stopping, "theta") else None
     if args.json:
         out = {
