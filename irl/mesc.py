@@ -328,7 +328,8 @@ class MESCResult:
             if evidence.min() < 0:
                 raise ValueError(f"evidence must be non-negative log-likelihood losses (got {evidence.min():.4g})")
             evidence_cost = _as_real("evidence_cost", evidence_cost, low=0.0)
-            zeta = 1.0 / (1.0 + np.exp(-(evidence - evidence_cost)))
+            size = constraint_probability(w, s_n) if s_n > 0 else (w > 0).astype(float)
+            zeta = size / (1.0 + np.exp(-(evidence - evidence_cost)))
             evidence.flags.writeable = False
         else:
             zeta = penalty_zeta.copy()

@@ -147,7 +147,7 @@ def select(obj, *, cost, n_lambda=12, patience=2, opts):
             support, fit, tight = s2, r, False
             continue
         for g, f, _, _ in drops:
-            evidence[f] = g
+            evidence[f] = max(g, 0.0)
         break
     if support.any() and not tight:
         fit = _refit(obj, fit.penalties, support, opts)

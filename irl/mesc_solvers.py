@@ -62,7 +62,8 @@ def projected_gradient_norm(w, grad, upper, free):
 def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e-3, max_iter=1000, maxcor=40):
     """Maximise the (penalised) likelihood with L-BFGS-B; see the module docstring.
 
-    ``free`` (bool mask) holds the other penalties at zero; ``scale`` runs the
+    ``upper`` is None, a number or an array (``inf`` for no bound); ``free``
+    (bool mask) holds the other penalties at zero; ``scale`` runs the
     solver on ``theta = omega / scale``. Converged means the projected gradient
     of the penalised objective is <= tol on the free coordinates, or
     L-BFGS-B's relative reduction test passed.
@@ -101,7 +102,8 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
         if free is not None and not free[f]:
             bounds.append((0.0, 0.0))
         else:
-            bounds.append((0.0, None if upper is None else float(upper / scale[f])))
+            u = None if upper is None else float(upper if np.ndim(upper) == 0 else upper[f])
+            bounds.append((0.0, None if u is None or not np.isfinite(u) else u / scale[f]))
     res = minimize(
         fun, w0 / scale, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
         options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter, "maxcor": maxcor},
