@@ -7,14 +7,15 @@ module selects the constraints the demonstrations give evidence for:
 
 1. **L1 path (screening).** The L1-penalised likelihood
    ``L(omega) - lam * sum(omega)`` (on ``omega >= 0`` the L1 norm is linear) is
-   maximised for a geometric grid of ``lam`` from ``lam_max = max_f dL/domega_f(0)``
-   (the smallest strength at which no feature is penalised) downwards, each fit
-   warm-started from the last, down to a quarter of ``cost / N`` (N
-   demonstrations), with a tolerance ten times looser than the final fits'.
-   Each new support S is refitted by plain maximum
-   likelihood on S ("relaxed" lasso) and scored by ``N L_S - |S|`` (Akaike's
-   cost, one nat per feature: a generous screen). The path stops after
-   ``patience`` supports without improvement.
+   maximised on a geometric grid of ``n_lambda`` strengths from
+   ``lam_max = max_f dL/domega_f(0)`` (the smallest strength at which no
+   feature is penalised) down to ``min(cost / (4 N), lam_max / 1000)``, each
+   fit warm-started from the last, with a tolerance thirty times looser than
+   the final fits' (the path only has to find supports). Each new support S
+   is refitted by plain maximum likelihood on S ("relaxed" lasso) and scored
+   by ``N L_S - |S|`` (Akaike's cost, one nat per feature: a generous
+   screen). The path stops at the first support that does not improve the
+   score.
 2. **Backward elimination (evidence).** From the best screened support, the
    feature whose removal costs the least log-likelihood (the others refitted)
    is removed while that cost is below ``cost`` nats; the costs of the features
@@ -51,7 +52,7 @@ def evidence_cost(n_decisions, n_features):
 class Selection:
     """Outcome of :func:`select` (private)."""
 
-    fit: mesc_solvers.Fit  # plain maximum likelihood on the selected support
+    fit: mesc_solvers.Fit  # plain maximum likelihood on the support kept by the elimination
     support: np.ndarray  # bool (F,)
     evidence: np.ndarray  # nats (F,), zero outside the support
     cost: float
@@ -75,7 +76,7 @@ def path_strengths(lam_max, lam_cost, n_lambda):
     return lam_max * np.geomspace(1.0, low / lam_max, n_lambda + 1)[1:]
 
 
-def select(obj, *, cost, n_lambda=12, patience=2, opts):
+def select(obj, *, cost, n_lambda=8, patience=1, opts):
     """Run the L1 path, the relaxed refits and the backward elimination (module docstring)."""
     F = obj.n_features
     N = obj.n_demonstrations
@@ -90,7 +91,7 @@ def select(obj, *, cost, n_lambda=12, patience=2, opts):
         w = zeros
         seen = set()
         since_best = 0
-        path_opts = dict(opts, tol=10.0 * opts["tol"])
+        path_opts = dict(opts, tol=30.0 * opts["tol"])
         for lam in path_strengths(lam_max, cost / N, n_lambda):
             l1_fit = mesc_solvers.lbfgsb(obj, w, l1=float(lam), **path_opts)
             n_fits += 1
