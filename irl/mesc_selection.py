@@ -17,13 +17,21 @@ module selects the constraints the demonstrations give evidence for:
    screen). The path stops at the first support that does not improve the
    score.
 2. **Backward elimination (evidence).** From the best screened support, the
-   feature whose removal costs the least log-likelihood (the others refitted)
-   is removed while that cost is below ``cost`` nats; the costs of the features
-   that remain are their evidence ``e_f = N (L_S - L_{S without f})``.
-3. **Probability.** ``zeta_f = sigmoid(e_f - cost)``: the posterior probability
-   that f belongs to the model, in the Laplace (BIC-type) approximation of the
-   posterior odds between the models with and without f. A feature outside
-   the selected model has no evidence, ``zeta_f = sigmoid(-cost)``.
+   feature whose removal costs the least log-likelihood is removed while that
+   cost is below ``cost`` nats. The cost with the other penalties held is an
+   upper bound of the cost with them refitted, so a feature whose held cost
+   is below ``cost`` is removed at once; when none is, each feature is
+   dropped in turn with the others refitted (which reveals redundant
+   features, such as a colour and the cells of that colour). The refitted
+   costs of the features that remain are their evidence
+   ``e_f = N (L_S - L_{S without f})`` (nats, over all demonstrations).
+3. **Probability** (in :class:`irl.mesc.MESCResult`).
+   ``sigmoid(e_f - cost)`` is the posterior probability that f belongs to
+   the model in the Laplace (BIC-type) approximation of the posterior odds of
+   the models with and without f; ``zeta_f`` multiplies it by the paper's
+   size map of the penalty measured against the nominal reward's spread,
+   the probability that a penalty of that size is a constraint rather than a
+   mild preference. A feature outside the selected model has no evidence.
 
 ``cost`` is ``max(log(n) / 2, log(F))`` nats per feature (n demonstrated
 decisions, F candidate features): the larger of the Bayesian information
