@@ -476,7 +476,8 @@ def _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts):
         return sel.fit, sel.evidence, sel.n_fits
     if selection == "l1":
         strength = cost / obj.n_demonstrations if l1 is None else l1
-        return mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts), None, 1
+        fit = mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts)
+        return fit, mesc_selection.held_evidence(obj, fit), 1
     return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1
 
 
@@ -516,7 +517,9 @@ def mesc_irl(
         ``"evidence"``: L1 path, relaxed refits and backward elimination
         (Notes); ``zeta = sigmoid(evidence - evidence_cost)``.
         ``"l1"``: one fit of ``L(omega) - l1 * sum(omega)`` (default strength
-        ``evidence_cost / N``); ``zeta`` is the paper's map of the penalties.
+        ``evidence_cost / N``); ``evidence`` is the log-likelihood lost when a
+        penalty is set to zero with the others held (one evaluation per
+        penalised feature, no refits), zeta as for ``"evidence"``.
         ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
         the paper's map. ``"auto"`` (default): ``"none"`` with
         ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,

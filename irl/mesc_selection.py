@@ -162,3 +162,17 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         fit = _refit(obj, fit.penalties, support, opts)
         n_fits += 1
     return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
+
+
+def held_evidence(obj, fit):
+    """Evidence of each penalised feature with the others held: ``N (L(omega) - L(omega with omega_f = 0))``.
+
+    One evaluation per penalised feature; an upper bound of the refitted
+    evidence of :func:`select`, used where refits are too costly.
+    """
+    evidence = np.zeros(obj.n_features)
+    for f in np.flatnonzero(fit.penalties > 0.0):
+        w = fit.penalties.copy()
+        w[f] = 0.0
+        evidence[f] = max(obj.n_demonstrations * (fit.value - obj._evaluate(w)[0]), 0.0)
+    return evidence

@@ -238,7 +238,14 @@ def test_auto_switches_to_one_l1_fit_and_preconditioning_on_large_problems(monke
 
     monkeypatch.setattr(mesc_module.MESCObjective, "feature_counts", spy)
     res = mesc_irl(world.nominal_mdp, demos)
-    assert res.selection == "l1" and res.zeta_method == "penalty" and calls
+    assert res.selection == "l1" and res.zeta_method == "evidence" and calls
+    # held-others evidence: the likelihood lost by zeroing each penalty alone
+    obj0 = MESCObjective(world.nominal_mdp, demos)
+    base = obj0(res.penalties)[0]
+    for f in range(world.n_features):
+        w = np.array(res.penalties)
+        w[f] = 0.0
+        assert res.evidence[f] == pytest.approx(max(len(demos) * (base - obj0(w)[0]), 0.0), abs=1e-9)
     # the L1 strength is the evidence cost per demonstration: its optimality conditions hold
     obj = MESCObjective(world.nominal_mdp, demos)
     lam = mesc_selection.evidence_cost(obj.n_decisions, world.n_features) / len(demos)
