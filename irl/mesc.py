@@ -247,7 +247,8 @@ class MESCResult:
     zeta : ndarray, shape (n_features,)
         Probability that each feature is a constraint. With
         ``zeta_method == "evidence"`` (the default of :func:`mesc_irl`)
-        ``sigmoid(evidence - evidence_cost)``; with ``"penalty"`` the
+        ``sigmoid((penalty - sigma_nominal) / sigma_nominal) *
+        sigmoid(evidence - evidence_cost)``; with ``"penalty"`` the
         paper's map ``penalty_zeta``.
     horizon, n_demonstrations, n_iter, n_evaluations : int
     converged : bool
@@ -309,8 +310,9 @@ class MESCResult:
         """Build a result (zeta, learned MDP, ...) from penalties; ``info`` fills the fit diagnostics.
 
         With ``evidence`` (nats per feature) and ``evidence_cost`` (nats),
-        ``zeta = sigmoid(evidence - evidence_cost)``; otherwise zeta is the
-        paper's map of the penalties.
+        ``zeta = sigmoid((penalty - sigma_nominal) / sigma_nominal) *
+        sigmoid(evidence - evidence_cost)``; otherwise zeta is the paper's
+        map of the penalties.
         """
         if not isinstance(nominal, MDP) or nominal.features is None:
             raise TypeError("nominal must be an irl.MDP with features")
@@ -586,10 +588,13 @@ def mesc_irl(
     time, the feature whose removal (others refitted) costs fewer than
     ``evidence_cost = max(log(n) / 2, log(F))`` nats of log-likelihood
     (n demonstrated decisions, F features). ``evidence`` is that cost for
-    the features kept and 0 for the others, and
-    ``zeta = sigmoid(evidence - evidence_cost)`` approximates the posterior
-    probability that the feature belongs to the model. The penalties are the
-    maximum-likelihood penalties of the selected features (zero elsewhere).
+    the features kept and 0 for the others; ``sigmoid(evidence -
+    evidence_cost)`` approximates the posterior probability that the feature
+    belongs to the model, and ``zeta`` multiplies it by the paper's size map
+    of the penalty measured against the nominal reward's spread
+    (``sigma_nominal``), so that a proven but mild preference is not called
+    a constraint. The penalties are the maximum-likelihood penalties of the
+    selected features (zero elsewhere).
 
     Examples
     --------
