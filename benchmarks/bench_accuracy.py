@@ -4,12 +4,16 @@ For each setting (deterministic, and slip 0.1) and each number of demonstrations
 n, over independent seeded draws of demonstrations from the true constrained
 world (the soft policy of its MDP, as in the paper), this reports
 
-* MESC-IRL (:func:`irl.mesc.mesc_irl`): precision, recall and false positive
+* MESC-IRL (:func:`irl.mesc.mesc_irl`) in three variants (``--methods``): the
+  default call ("MESC-IRL", evidence selection), plain maximum likelihood
+  ("MESC ML", ``selection="none"``) and the paper's optimiser ("MESC EG",
+  ``optimizer="eg"``); for each: precision, recall and false positive
   rate of the constraints with ``zeta >= threshold`` (default 0.6, the
   paper's; several thresholds give one row each), the paper's "false positive rate" (really the false discovery
   rate, 1 - precision), the soft false positives / negatives at ``chi``
-  (paper Section 3.3), and the KL divergence from the state-action visitation
-  of held-out demonstrations to that of trajectories of the learned model;
+  (paper Section 3.3), and the KL and Jensen-Shannon divergences from the
+  state-action visitation of held-out demonstrations to that of trajectories
+  of the learned model;
 * the Scobee & Sastry baseline (:func:`irl.scobee.infer_hard_constraints`) on
   the same demonstrations, deterministic world only (it assumes determinism);
   its soft errors use zeta = 1 on inferred constraints and 0 elsewhere;
@@ -49,11 +53,19 @@ sys.path.insert(0, str(ROOT))
 from irl.demonstrations import generate_demonstrations, sample_trajectories  # noqa: E402
 from irl.io import load_paper_demonstrations, load_paper_worlds  # noqa: E402
 from irl.mesc import MESCResult, mesc_irl  # noqa: E402
-from irl.metrics import hard_constraint_scores, soft_constraint_errors, visitation_kl_divergence  # noqa: E402
+from irl.metrics import (  # noqa: E402
+    hard_constraint_scores, soft_constraint_errors, visitation_js_divergence, visitation_kl_divergence,
+)
 from irl.scobee import infer_hard_constraints  # noqa: E402
 
 DATA = Path(os.environ.get("PYMDFT_DATA", ROOT.parent / "shared" / "data")) / "paper"
-COLUMNS = ("precision", "recall", "fpr", "fdr", "soft_fp", "soft_fn", "kl", "seconds")
+COLUMNS = ("precision", "recall", "fpr", "fdr", "soft_fp", "soft_fn", "kl", "js", "seconds")
+# MESC-IRL variants: label -> keyword arguments of mesc_irl
+METHODS = {
+    "MESC-IRL": {},  # the default call (evidence selection)
+    "MESC ML": {"selection": "none"},  # plain maximum likelihood, the paper's zeta map
+    "MESC EG": {"optimizer": "eg"},  # the paper's optimiser, the paper's zeta map
+}
 
 
 def load_world(p_slip):
@@ -74,13 +86,17 @@ def kl_to(held, trajectories, world):
                                     pseudocount=0.5)
 
 
+def js_to(held, trajectories, world):
+    return visitation_js_divergence(held, trajectories, n_states=world.n_states, n_actions=world.n_actions)
+
+
 def run_setting(name, world, sizes, draws, args, pools=None):
     zeta_true = MESCResult.from_penalties(world.nominal_mdp, world.true_penalties).zeta
     rows = {}  # (method, n) -> list of dicts
     seeds = np.random.SeedSequence([args.seed, int(round(world.p_slip * 1000))]).spawn(draws)
     deterministic = world.p_slip == 0.0
     for d, seed in enumerate(seeds):
-        g_pool, g_held, g_true, g_mesc, g_scobee = (np.random.default_rng(s) for s in seed.spawn(5))
+        g_pool, g_held, g_true, _, g_scobee = (np.random.default_rng(s) for s in seed.spawn(5))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             if pools is None:
@@ -92,20 +108,22 @@ def run_setting(name, world, sizes, draws, args, pools=None):
         rows.setdefault(("true model", 0), []).append({"kl": kl_to(held, fresh, world)})
         for n in sizes:
             demos = pool.subset(np.arange(n))
-            t0 = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter, l2=args.l2)
-            secs = time.perf_counter() - t0
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                model = generate_demonstrations(res.constrained, args.n_model, rng=g_mesc)
-            kl = kl_to(held, model, world)
-            for thr in args.thresholds:
-                row = scores(world, zeta_true, res.zeta >= thr, res.zeta, args.chi)
-                row.update(kl=kl, seconds=secs, converged=res.converged)
-                label = "MESC-IRL" if len(args.thresholds) == 1 else f"MESC z>={thr:g}"
-                rows.setdefault((label, n), []).append(row)
+            for m, method in enumerate(args.methods):
+                t0 = time.perf_counter()
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter, **METHODS[method])
+                secs = time.perf_counter() - t0
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    g_model = np.random.default_rng([args.seed, d, n, m])
+                    model = generate_demonstrations(res.constrained, args.n_model, rng=g_model)
+                kl, js = kl_to(held, model, world), js_to(held, model, world)
+                for thr in args.thresholds:
+                    row = scores(world, zeta_true, res.zeta >= thr, res.zeta, args.chi)
+                    row.update(kl=kl, js=js, seconds=secs, converged=res.converged)
+                    label = method if len(args.thresholds) == 1 else f"{method} z>={thr:g}"
+                    rows.setdefault((label, n), []).append(row)
             if deterministic:
                 t0 = time.perf_counter()
                 base = infer_hard_constraints(world.nominal_mdp, demos, min_kl_decrease=args.min_kl_decrease,
@@ -116,7 +134,7 @@ def run_setting(name, world, sizes, draws, args, pools=None):
                     warnings.simplefilter("ignore", RuntimeWarning)
                     model = sample_trajectories(world.nominal_mdp, base.policy(world.nominal_mdp), args.n_model,
                                                 rng=g_scobee, max_steps=base.horizon)
-                row.update(kl=kl_to(held, model, world), seconds=secs)
+                row.update(kl=kl_to(held, model, world), js=js_to(held, model, world), seconds=secs)
                 rows.setdefault(("Scobee & Sastry", n), []).append(row)
         if args.progress:
             print(f"  {name}: draw {d + 1}/{draws} done", file=sys.stderr)
@@ -185,7 +203,8 @@ def main(argv=None):
     ap.add_argument("--n-heldout", type=int, default=100, help="held-out demonstrations per draw")
     ap.add_argument("--n-model", type=int, default=100, help="model trajectories sampled for the KL")
     ap.add_argument("--max-iter", type=int, default=1000, help="L-BFGS-B iterations of MESC-IRL")
-    ap.add_argument("--l2", type=float, default=0.0, help="ridge weight of MESC-IRL (0: the paper's objective)")
+    ap.add_argument("--methods", default="MESC-IRL,MESC ML,MESC EG",
+                    help="MESC-IRL variants: " + ", ".join(f"{k!r} {v}" for k, v in METHODS.items()))
     ap.add_argument("--min-kl-decrease", type=float, default=0.1, help="stopping rule of the baseline")
     ap.add_argument("--max-constraints", type=int, default=None,
                     help="cap on the baseline's constraints (the original never exceeds 9)")
@@ -195,12 +214,16 @@ def main(argv=None):
     ap.add_argument("--progress", action="store_true", help="report progress on stderr")
     args = ap.parse_args(argv)
     args.thresholds = [float(x) for x in args.threshold.split(",")]
+    args.methods = [m.strip() for m in args.methods.split(",")]
+    unknown = [m for m in args.methods if m not in METHODS]
+    if unknown:
+        ap.error(f"unknown methods {unknown}; choose from {list(METHODS)}")
     sizes = [1, 5, 20] if args.quick else [int(x) for x in args.sizes.split(",")]
     draws = 3 if args.quick else args.draws
     settings = [s.strip() for s in args.settings.split(",")]
     print("# Accuracy of learned constraints: the paper's Figure 1 world")
     print(f"zeta threshold {args.threshold}, chi {args.chi}; KL(held-out || model) of state-action visitation,"
-          f" pseudocount 0.5; {args.n_heldout} held-out and {args.n_model} model trajectories; mean ± sd over draws")
+          f" pseudocount 0.5, and JS (no smoothing); {args.n_heldout} held-out and {args.n_model} model trajectories; mean ± sd over draws")
     print("precision/recall/fpr: hard constraints; fdr = 1 - precision (the paper's 'false positive rate');"
           " seconds: one fit")
     out = {}

@@ -11,15 +11,12 @@ Run: ``python benchmarks/bench_scale.py [--size 100] [--n-demos 200] [--min-dist
 The random world keeps the paper's proportions of special cells (6 of 81 cells
 each blue, green and constrained; 2 constrained actions; both colours
 constrained), with start and goal at least ``--min-distance`` cells apart.
-OpenBLAS is limited to one thread (see bench_mesc.py) unless
-``OPENBLAS_NUM_THREADS`` is set.
+mesc_irl keeps BLAS to one thread itself (threadpoolctl); nothing is set here.
 """
 
+import argparse
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-import argparse  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -44,7 +41,9 @@ def main(argv=None):
     ap.add_argument("--p-slip", type=float, default=0.1)
     ap.add_argument("--horizon", type=int, default=None, help="default: 1.5 times the longest demonstration")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--no-precondition", action="store_true", help="run L-BFGS-B on the raw penalties")
+    ap.add_argument("--precondition", choices=("auto", "on", "off"), default="auto",
+                    help="mesc_irl's precondition= (default 'auto', as a default call)")
+    ap.add_argument("--selection", default="auto", help="mesc_irl's selection= (default 'auto', as a default call)")
     ap.add_argument("--tol", type=float, default=1e-3,
                     help="projected-gradient tolerance (mesc_irl's default 1e-3); 1 / n_demos is one visit over the data")
     ap.add_argument("--max-iter", type=int, default=1000)
@@ -71,8 +70,9 @@ def main(argv=None):
 
     t0, c0 = time.perf_counter(), time.process_time()
     tol = args.tol
-    res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=not args.no_precondition, tol=tol,
-                   max_iter=args.max_iter, maxcor=args.maxcor)
+    precondition = {"auto": "auto", "on": True, "off": False}[args.precondition]
+    res = mesc_irl(nominal, demos, horizon=args.horizon, precondition=precondition, tol=tol,
+                   max_iter=args.max_iter, maxcor=args.maxcor, selection=args.selection)
     t_fit, c_fit = time.perf_counter() - t0, time.process_time() - c0
     rss_after = peak_rss_mb()
 
@@ -97,7 +97,7 @@ def main(argv=None):
           f"max {demos.lengths.max()})")
     print(f"MESC-IRL fit              {t_fit:8.2f} s  (horizon {res.horizon}, {res.n_iter} iterations, "
           f"{res.n_evaluations} evaluations, {t_fit / max(res.n_evaluations, 1) * 1e3:.0f} ms each, "
-          f"converged {res.converged} at tol {tol:g}, preconditioned {not args.no_precondition})")
+          f"converged {res.converged} at tol {tol:g}, precondition {args.precondition}, selection {res.selection})")
     print(f"MESC-IRL fit, CPU time    {c_fit:8.2f} s  (the wall time on an otherwise idle core)")
     print(f"log-likelihood per demonstration {res.objective:.3f}")
     print(f"true constraints with zeta >= 0.6: {int((found & truth).sum())} of {int(truth.sum())}; "

@@ -203,6 +203,9 @@ def save_mesc_result(result: MESCResult, path: PathLike) -> None:
         "n_evaluations": result.n_evaluations,
         "converged": result.converged,
         "message": result.message,
+        "selection": result.selection,
+        "evidence": None if result.evidence is None else result.evidence.tolist(),
+        "evidence_cost": result.evidence_cost,
     }
     _write_atomically(path, lambda fh: fh.write(json.dumps(doc, indent=1).encode()))
 
@@ -249,6 +252,7 @@ def _result_from_doc(doc, path, nominal, MESCResult):
         objective=float("nan") if doc["objective"] is None else doc["objective"], gradient=grad,
         horizon=int(doc["horizon"]), n_demonstrations=int(doc["n_demonstrations"]), n_iter=int(doc["n_iter"]),
         n_evaluations=int(doc["n_evaluations"]), converged=bool(doc["converged"]), message=str(doc["message"]),
+        selection=str(doc.get("selection", "none")), evidence=doc.get("evidence"), evidence_cost=doc.get("evidence_cost"),
     )
 
 

@@ -38,12 +38,12 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
-from . import _kernels
+from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
 from .mdp import MDP, _as_float, _as_int, _as_real
 from ._repr import compact_repr
+from .mesc_selection import evidence_cost
 
 __all__ = ["MESCObjective", "MESCResult", "LearnedConstraint", "mesc_irl", "constraint_probability"]
 
@@ -129,6 +129,7 @@ class MESCObjective:
         self.nominal = nominal
         self.features = nominal.features
         self.n_demonstrations = n = len(demonstrations)
+        self.n_decisions = int(np.count_nonzero(demonstrations.time_steps < H))
         S, A = nominal.n_states, nominal.n_actions
         t = demonstrations.time_steps
         keep = np.flatnonzero(t < H)
@@ -244,11 +245,28 @@ class MESCResult:
         Standard deviations of R_N and R_C over the feasible transitions
         (:func:`feasible_reward_sd`) and ``sqrt((sigma_N**2 + sigma_C**2) / 2)``.
     zeta : ndarray, shape (n_features,)
-        ``sigmoid((penalty - sigma_pooled) / sigma_pooled)`` per feature.
+        Probability that each feature is a constraint. With
+        ``zeta_method == "evidence"`` (the default of :func:`mesc_irl`)
+        ``sigmoid((penalty - sigma_nominal) / sigma_nominal) *
+        sigmoid(evidence - evidence_cost)``; with ``"penalty"`` the
+        paper's map ``penalty_zeta``.
     horizon, n_demonstrations, n_iter, n_evaluations : int
     converged : bool
     message : str
         The optimiser's message.
+    penalty_zeta : ndarray, shape (n_features,)
+        The paper's map ``sigmoid((penalty - sigma_pooled) / sigma_pooled)``.
+    evidence : ndarray of shape (n_features,) or None
+        Log-likelihood (nats, summed over the demonstrations) lost when the
+        feature's penalty is set to zero and the other selected penalties are
+        refitted; zero for features outside the selected model; None when no
+        selection was made.
+    evidence_cost : float or None
+        Cost in nats of one more feature (see :func:`mesc_irl`); None with ``evidence``.
+    zeta_method : str
+        ``"evidence"`` or ``"penalty"``.
+    selection : str
+        How the penalised features were chosen: ``"evidence"``, ``"l1"`` or ``"none"``.
 
     Examples
     --------
@@ -281,10 +299,21 @@ class MESCResult:
     n_evaluations: int
     converged: bool
     message: str
+    penalty_zeta: np.ndarray | None = None
+    evidence: np.ndarray | None = None
+    evidence_cost: float | None = None
+    zeta_method: str = "penalty"
+    selection: str = "none"
 
     @classmethod
-    def from_penalties(cls, nominal, penalties, **info):
-        """Build a result (zeta, learned MDP, ...) from penalties; ``info`` fills the fit diagnostics."""
+    def from_penalties(cls, nominal, penalties, *, evidence=None, evidence_cost=None, selection="none", **info):
+        """Build a result (zeta, learned MDP, ...) from penalties; ``info`` fills the fit diagnostics.
+
+        With ``evidence`` (nats per feature) and ``evidence_cost`` (nats),
+        ``zeta = sigmoid((penalty - sigma_nominal) / sigma_nominal) *
+        sigmoid(evidence - evidence_cost)``; otherwise zeta is the paper's
+        map of the penalties.
+        """
         if not isinstance(nominal, MDP) or nominal.features is None:
             raise TypeError("nominal must be an irl.MDP with features")
         w = nominal.features.check_weights(penalties, "penalties")
@@ -293,9 +322,21 @@ class MESCResult:
         constrained = nominal.penalised(w)
         s_n, s_c = feasible_reward_sd(nominal), feasible_reward_sd(constrained)
         s_p = float(np.sqrt((s_n**2 + s_c**2) / 2))
-        zeta = constraint_probability(w, s_p) if s_p > 0 else (w > 0).astype(float)
-        w.flags.writeable = False
-        zeta.flags.writeable = False
+        penalty_zeta = constraint_probability(w, s_p) if s_p > 0 else (w > 0).astype(float)
+        if (evidence is None) != (evidence_cost is None):
+            raise ValueError("evidence and evidence_cost must be given together (got one of them)")
+        if evidence is not None:
+            evidence = _as_float("evidence", evidence, ndim=1, shape=(w.size,))
+            if evidence.min() < 0:
+                raise ValueError(f"evidence must be non-negative log-likelihood losses (got {evidence.min():.4g})")
+            evidence_cost = _as_real("evidence_cost", evidence_cost, low=0.0)
+            size = constraint_probability(w, s_n) if s_n > 0 else (w > 0).astype(float)
+            zeta = size / (1.0 + np.exp(-(evidence - evidence_cost)))
+            evidence.flags.writeable = False
+        else:
+            zeta = penalty_zeta.copy()
+        for arr in (w, zeta, penalty_zeta):
+            arr.flags.writeable = False
         defaults = dict(
             objective=float("nan"), gradient=np.full(w.size, np.nan),
             horizon=0, n_demonstrations=0, n_iter=0, n_evaluations=0, converged=False, message="",
@@ -303,7 +344,9 @@ class MESCResult:
         defaults.update(info)
         return cls(
             penalties=w, feature_names=nominal.features.names, nominal=nominal, constrained=constrained,
-            sigma_nominal=s_n, sigma_constrained=s_c, sigma_pooled=s_p, zeta=zeta, **defaults,
+            sigma_nominal=s_n, sigma_constrained=s_c, sigma_pooled=s_p, zeta=zeta, penalty_zeta=penalty_zeta,
+            evidence=evidence, evidence_cost=evidence_cost,
+            zeta_method="penalty" if evidence is None else "evidence", selection=selection, **defaults,
         )
 
     def feature_zeta(self, features=None):
@@ -317,7 +360,7 @@ class MESCResult:
         Returns
         -------
         ndarray
-            ``sigmoid((omega_f - sigma_pooled) / sigma_pooled)`` for each feature in f.
+            ``zeta`` of each feature in f (see ``zeta_method``).
         """
         idx = slice(None) if features is None else features
         return np.array(self.zeta[idx], copy=True)
@@ -326,7 +369,8 @@ class MESCResult:
         """zeta of every padded transition, shape (S, A, K), from the penalty of the features in ``features``.
 
         ``sigmoid((omega_f . phi_f(s, a, s') - sigma_pooled) / sigma_pooled)``;
-        with ``features=None`` all features count (the paper's per-transition zeta).
+        with ``features=None`` all features count (the paper's per-transition
+        zeta). This is always the paper's penalty map, whatever ``zeta_method``.
         """
         w = np.zeros_like(self.penalties)
         sel = slice(None) if features is None else features
@@ -386,24 +430,84 @@ def _initial(init, n_features, names):
     return w
 
 
+SELECTIONS = ("auto", "evidence", "l1", "none")
+OPTIMIZERS = ("lbfgsb", "eg")
+# "auto" runs the evidence selection (L1 path and backward elimination) when one
+# evaluation visits at most this many (step, state, action, successor) entries and
+# there are at most EVIDENCE_MAX_FEATURES features; above either, one L1 fit.
+EVIDENCE_MAX_WORK = 4_000_000
+EVIDENCE_MAX_FEATURES = 1000
+# "auto" preconditioning: on above this many features
+PRECONDITION_MIN_FEATURES = 1000
+EG_DEFAULTS = dict(steps=500, lr=0.3, clip=10.0, init=1e-6, burn_in=50, tol_step=1e-4, tol_gradient=1e-2, cap=200.0)
+
+
+def _choice(name, value, allowed):
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, allowed))} (got {value!r})")
+    return value
+
+
+def _eg_options(eg_options):
+    opts = dict(EG_DEFAULTS)
+    if eg_options is None:
+        return opts
+    if not isinstance(eg_options, dict):
+        raise TypeError(f"eg_options must be a dict (got {type(eg_options).__name__})")
+    unknown = sorted(set(eg_options) - set(EG_DEFAULTS))
+    if unknown:
+        raise ValueError(f"eg_options has unknown keys {unknown}; allowed: {sorted(EG_DEFAULTS)}")
+    for key, val in eg_options.items():
+        if key in ("steps", "burn_in"):
+            opts[key] = _as_int(f"eg_options[{key!r}]", val, low=0 if key == "burn_in" else 1)
+        elif key in ("clip", "cap") and val is None:
+            opts[key] = None
+        else:
+            opts[key] = _as_real(f"eg_options[{key!r}]", val, low=0.0, low_open=key in ("lr", "init", "clip", "cap"))
+    return opts
+
+
+def _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts):
+    """Run the chosen optimiser and selection; returns ``(fit, evidence or None, number of fits)``."""
+    if optimizer == "eg":
+        if max_penalty is not None:
+            eg = dict(eg, cap=max_penalty)
+        return mesc_solvers.exponentiated_gradient(obj, obj.n_features, l1=l1 or 0.0, **eg), None, 1
+    if selection == "evidence":
+        sel = mesc_selection.select(obj, cost=cost, opts=opts)
+        return sel.fit, sel.evidence, sel.n_fits
+    if selection == "l1":
+        strength = cost / obj.n_demonstrations if l1 is None else l1
+        fit = mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts)
+        return fit, mesc_selection.held_evidence(obj, fit), 1
+    return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1
+
+
 def mesc_irl(
     nominal,
     demonstrations,
     *,
+    selection="auto",
+    optimizer="lbfgsb",
     horizon=None,
     init=None,
     max_penalty=None,
+    l1=None,
     l2=0.0,
     max_iter=1000,
     tol=1e-3,
-    precondition=False,
+    precondition="auto",
     maxcor=40,
+    eg_options=None,
 ):
     """Learn soft constraints from demonstrations (MESC-IRL).
 
-    Maximises the log-likelihood L(omega) of :mod:`irl.mesc` (minus
-    ``l2 / 2 * |omega|**2``) over ``0 <= omega <= max_penalty`` with
-    L-BFGS-B and the exact gradient.
+    By default the penalties are those of the sparsest explanation the
+    demonstrations give evidence for, and ``zeta`` is the probability of each
+    feature being a constraint given that evidence (``selection="evidence"``,
+    see Notes). ``selection="none"`` is the plain maximum-likelihood fit of
+    :mod:`irl.mesc` with the paper's penalty-to-probability map, and
+    ``optimizer="eg"`` the paper's own optimiser.
 
     Parameters
     ----------
@@ -411,31 +515,59 @@ def mesc_irl(
         The nominal MDP, with features (e.g. ``GridWorld.nominal_mdp``).
     demonstrations : Demonstrations
         Trajectories in the (unknown) constrained MDP; checked against ``nominal``.
+    selection : {"auto", "evidence", "l1", "none"}
+        ``"evidence"``: L1 path, relaxed refits and backward elimination
+        (Notes); ``zeta = sigmoid(evidence - evidence_cost)``.
+        ``"l1"``: one fit of ``L(omega) - l1 * sum(omega)`` (default strength
+        ``evidence_cost / N``); ``evidence`` is the log-likelihood lost when a
+        penalty is set to zero with the others held (one evaluation per
+        penalised feature, no refits), zeta as for ``"evidence"``.
+        ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
+        the paper's map. ``"auto"`` (default): ``"none"`` with
+        ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,
+        otherwise ``"evidence"`` when one evaluation of the objective is
+        small (at most 4e6 step-state-action-successor entries and 1,000
+        features) and ``"l1"`` above.
+    optimizer : {"lbfgsb", "eg"}
+        ``"lbfgsb"``: scipy's L-BFGS-B with the exact gradient (default).
+        ``"eg"``: the paper's clipped exponentiated gradient (500 steps,
+        learning rate 0.3, gradient norm clipped at 10, start 1e-6, its
+        stopping rule and best iterate; ``eg_options`` overrides them).
+        Only with ``selection="none"`` or ``"auto"``.
     horizon : int, optional
         Horizon H of the backward and forward passes (default: one and a
         half times the longest demonstration, rounded up).
     init : array_like of shape (n_features,) or MESCResult, optional
-        Warm start, e.g. penalties learned on another world with the same
-        feature layout (transfer). Default zeros.
+        Warm start of L-BFGS-B, e.g. penalties learned on another world with
+        the same feature layout (transfer). Default zeros. With
+        ``selection="evidence"`` the L1 path starts from zero and ``init``
+        is not used.
     max_penalty : float, optional
         Upper bound on every penalty (default none).
+    l1 : float, optional
+        L1 weight per demonstration (``selection="l1"`` or ``"none"``).
     l2 : float
-        Ridge weight on the penalties (default 0, the paper's objective).
+        Ridge weight on the penalties (default 0, the paper's objective;
+        ``selection="none"`` only).
     max_iter : int
-        L-BFGS-B iterations.
+        L-BFGS-B iterations of each fit.
     tol : float
-        Stop when the largest component of the projected gradient of L with
-        respect to omega is <= tol (expected feature visits per demonstration),
-        or when L-BFGS-B's relative change of L falls below its ``ftol``.
-    maxcor : int
-        Number of correction pairs L-BFGS-B keeps (its memory).
-    precondition : bool
+        A fit stops when the largest component of the projected gradient of
+        its objective is <= tol (expected feature visits per
+        demonstration), or when L-BFGS-B's relative change falls below its
+        ``ftol``.
+    precondition : bool or "auto"
         Run L-BFGS-B on ``theta = omega * sqrt(c + 0.01)``, c the expected plus
         empirical feature counts at the start point (a diagonal scaling that
-        evens out the curvature of frequent and rare features). It speeds up
-        large problems (thousands of features); where features are collinear
-        (a colour and the cells of that colour) the likelihood cannot tell
-        them apart and the scaling changes how the penalty is split among them.
+        evens out the curvature of frequent and rare features). ``"auto"``
+        (default) turns it on above 1,000 features, where it halves the
+        number of evaluations; below, collinear features (a colour and the
+        cells of that colour) would have their penalty split differently.
+    maxcor : int
+        Number of correction pairs L-BFGS-B keeps (its memory).
+    eg_options : dict, optional
+        Overrides of ``steps``, ``lr``, ``clip``, ``init``, ``burn_in``,
+        ``tol_step``, ``tol_gradient``, ``cap`` of the paper's optimiser.
 
     Returns
     -------
@@ -444,7 +576,25 @@ def mesc_irl(
     Warns
     -----
     RuntimeWarning
-        When L-BFGS-B stops without meeting its convergence criteria.
+        When an L-BFGS-B fit stops without meeting its convergence criteria.
+
+    Notes
+    -----
+    The evidence selection (docs/irl.md, section 4) maximises the
+    L1-penalised likelihood ``L(omega) - lam * sum(omega)`` along a geometric
+    path of ``lam`` (warm starts, from the strength at which no feature is
+    penalised), refits every new support by plain maximum likelihood and
+    keeps the support with the best ``N L - |S|``; then it removes, one at a
+    time, the feature whose removal (others refitted) costs fewer than
+    ``evidence_cost = max(log(n) / 2, log(F))`` nats of log-likelihood
+    (n demonstrated decisions, F features). ``evidence`` is that cost for
+    the features kept and 0 for the others; ``sigmoid(evidence -
+    evidence_cost)`` approximates the posterior probability that the feature
+    belongs to the model, and ``zeta`` multiplies it by the paper's size map
+    of the penalty measured against the nominal reward's spread
+    (``sigma_nominal``), so that a proven but mild preference is not called
+    a constraint. The penalties are the maximum-likelihood penalties of the
+    selected features (zero elsewhere).
 
     Examples
     --------
@@ -452,75 +602,66 @@ def mesc_irl(
     >>> world = GridWorld(5, 0, 24, constrained_states=[12], p_slip=0.0)
     >>> demos = generate_demonstrations(world.constrained_mdp, 50, rng=0)
     >>> res = mesc_irl(world.nominal_mdp, demos)
-    >>> res.converged, res.ranked_constraints()[0].name
-    (True, 'state 12')
+    >>> res.converged, [c.name for c in res.ranked_constraints(min_zeta=0.6)]
+    (True, ['state 12'])
+    >>> plain = mesc_irl(world.nominal_mdp, demos, selection="none")
+    >>> plain.zeta_method, res.zeta_method
+    ('penalty', 'evidence')
     """
     obj = MESCObjective(nominal, demonstrations, horizon=horizon)
     F = obj.n_features
+    selection = _choice("selection", selection, SELECTIONS)
+    optimizer = _choice("optimizer", optimizer, OPTIMIZERS)
     w0 = _initial(init, F, nominal.features.names)
     l2 = _as_real("l2", l2, low=0.0)
+    if l1 is not None:
+        l1 = _as_real("l1", l1, low=0.0)
     max_iter = _as_int("max_iter", max_iter)
     maxcor = _as_int("maxcor", maxcor)
     tol = _as_real("tol", tol, low=0.0, low_open=True)
+    if not (isinstance(precondition, bool) or precondition == "auto"):
+        raise ValueError(f"precondition must be True, False or 'auto' (got {precondition!r})")
     if max_penalty is not None:
         max_penalty = _as_real("max_penalty", max_penalty, low=0.0, low_open=True)
         w0 = np.minimum(w0, max_penalty)
+    eg = _eg_options(eg_options)
+    if selection == "auto":
+        if optimizer == "eg" or l2:
+            selection = "none"
+        elif l1 is not None:
+            selection = "l1"
+        else:
+            nom = nominal
+            work = obj.horizon * nom.n_states * nom.n_actions * nom.n_successors
+            small = work <= EVIDENCE_MAX_WORK and F <= EVIDENCE_MAX_FEATURES
+            selection = "evidence" if small else "l1"
+    if optimizer == "eg" and selection != "none":
+        raise ValueError(f"optimizer='eg' fits all penalties at once; use selection='none' (got {selection!r})")
+    if selection == "evidence" and (l1 is not None or l2):
+        raise ValueError("l1 and l2 apply to selection='l1' or 'none'; the evidence selection sets its own L1 path")
+    if selection == "l1" and l2:
+        raise ValueError(f"l2 applies to selection='none' (got l2={l2} with selection='l1')")
+    cost = evidence_cost(obj.n_decisions, F)
 
-    # Diagonal preconditioning: optimise theta = omega / scale, with scale_f =
-    # 1 / sqrt(c_f + 0.01) and c_f the expected plus empirical counts of feature f
-    # at the start point, so that frequent and rare features have similar curvature.
-    if precondition:
+    if precondition == "auto":
+        precondition = F > PRECONDITION_MIN_FEATURES
+    if precondition and optimizer == "lbfgsb":
         expected, empirical = obj.feature_counts(w0)
         scale = 1.0 / np.sqrt(np.abs(expected) + empirical + 1e-2)
     else:
-        scale = np.ones(F)
-    upper = None if max_penalty is None else max_penalty / scale
-    last = {}
+        scale = None
+    upper = max_penalty
+    opts = dict(upper=upper, scale=scale, tol=tol, max_iter=max_iter, maxcor=maxcor)
 
-    def fun(theta):
-        w = theta * scale
-        value, grad = obj._evaluate(w)
-        if l2:
-            value -= 0.5 * l2 * float(w @ w)
-            grad = grad - l2 * w
-        last.update(theta=theta.copy(), value=value, grad=grad)
-        return -value, -grad * scale
-
-    def projected_gradient(w, grad):
-        pg = np.abs(grad)
-        at_low = w <= 0.0
-        pg[at_low] = np.maximum(grad[at_low], 0.0)
-        if max_penalty is not None:
-            at_high = w >= max_penalty
-            pg[at_high] = np.maximum(-grad[at_high], 0.0)
-        return float(pg.max()) if pg.size else 0.0
-
-    done = {"converged": False}
-
-    def callback(intermediate_result):
-        theta = intermediate_result.x
-        if "theta" in last and np.array_equal(theta, last["theta"]):
-            if projected_gradient(theta * scale, last["grad"]) <= tol:
-                done["converged"] = True
-                raise StopIteration
-
-    bounds = [(0.0, None if upper is None else float(u)) for u in (upper if upper is not None else [None] * F)]
-    res = minimize(
-        fun, w0 / scale, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
-        options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter, "maxcor": maxcor},
-    )
-    w = np.clip(res.x * scale, 0.0, max_penalty)
-    value, grad = obj._evaluate(w)
-    if l2:
-        grad_pen = grad - l2 * w
-    else:
-        grad_pen = grad
-    converged = done["converged"] or projected_gradient(w, grad_pen) <= tol or bool(res.success)
-    message = "projected gradient <= tol" if done["converged"] else str(res.message)
-    if not converged:
-        warnings.warn(f"mesc_irl: L-BFGS-B did not converge ({message}); raise max_iter", RuntimeWarning, stacklevel=2)
+    with mesc_solvers.single_blas_thread():
+        fit, evidence, n_fits = _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts)
+    if optimizer == "lbfgsb" and not fit.converged:
+        warnings.warn(f"mesc_irl: L-BFGS-B did not converge ({fit.message}); raise max_iter", RuntimeWarning,
+                      stacklevel=2)
+    message = fit.message if n_fits == 1 else f"{n_fits} fits; last: {fit.message}"
     return MESCResult.from_penalties(
-        nominal, w, objective=value, gradient=grad,
-        horizon=obj.horizon, n_demonstrations=obj.n_demonstrations, n_iter=int(res.nit),
-        n_evaluations=obj.n_evaluations, converged=converged, message=message,
+        nominal, fit.penalties, objective=fit.value, gradient=fit.gradient,
+        horizon=obj.horizon, n_demonstrations=obj.n_demonstrations, n_iter=fit.n_iter,
+        n_evaluations=obj.n_evaluations, converged=fit.converged, message=message,
+        evidence=evidence, evidence_cost=None if evidence is None else cost, selection=selection,
     )

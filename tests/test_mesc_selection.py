@@ -1,0 +1,309 @@
+"""Tests of MESC-IRL's sparse selection, its evidence, the paper's optimiser and BLAS threading."""
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import minimize
+
+from irl import (
+    GridWorld,
+    MESCObjective,
+    MESCResult,
+    generate_demonstrations,
+    load_mesc_result,
+    load_paper_worlds,
+    mesc_irl,
+)
+from irl import mesc as mesc_module
+from irl import mesc_selection, mesc_solvers
+from irl.metrics import hard_constraint_scores
+
+
+def small_world(p_slip=0.0):
+    return GridWorld(
+        4, 0, 15, blue=[5], green=[10], constrained_states=[6], constrained_actions=["up_right"],
+        constrained_colours=["green"], p_slip=p_slip,
+    )
+
+
+@pytest.fixture(scope="module")
+def small_fit():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=5)
+    return world, demos, mesc_irl(world.nominal_mdp, demos)
+
+
+# ------------------------------------------------------------ the L1 objective
+@settings(deadline=None, max_examples=8)
+@given(seed=st.integers(0, 10_000), lam=st.floats(0.01, 1.0), p_slip=st.sampled_from([0.0, 0.1]))
+def test_l1_fit_meets_its_optimality_conditions(seed, lam, p_slip):
+    # maximiser of L - lam * sum(w) on w >= 0: dL/dw_f = lam where w_f > 0, dL/dw_f <= lam where w_f = 0
+    world = small_world(p_slip)
+    demos = generate_demonstrations(world.constrained_mdp, 15, rng=seed)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), l1=lam, tol=1e-6, max_iter=5000)
+    _, grad = obj(fit.penalties)
+    np.testing.assert_array_equal(grad, fit.gradient)
+    pos = fit.penalties > 1e-6
+    np.testing.assert_allclose(grad[pos], lam, atol=1e-4)
+    assert np.all(grad[~pos] <= lam + 1e-4)
+    # and the penalised objective is no better at random feasible points nearby
+    rng = np.random.default_rng(seed)
+    best = fit.value - lam * fit.penalties.sum()
+    for _ in range(5):
+        w = np.maximum(fit.penalties + rng.normal(0, 0.3, world.n_features), 0.0)
+        assert obj(w)[0] - lam * w.sum() <= best + 1e-7
+
+
+def test_held_coordinates_stay_at_zero_and_the_cap_binds():
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=2)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    free = np.zeros(world.n_features, dtype=bool)
+    right = world.feature_slices["action"].start + 1
+    free[[6, right]] = True
+    upper = np.full(world.n_features, np.inf)
+    upper[6] = 2.0
+    fit = mesc_solvers.lbfgsb(obj, np.ones(world.n_features), free=free, upper=upper, tol=1e-7)
+    assert np.all(fit.penalties[~free] == 0.0)
+    assert fit.penalties[6] == pytest.approx(2.0) and fit.gradient[6] > 0  # the likelihood wants more
+    # the same restricted problem solved by an independent optimiser (SLSQP)
+    idx = np.array([6, right])
+
+    def negll(x):
+        w = np.zeros(world.n_features)
+        w[idx] = x
+        v, g = obj(w)
+        return -v, -g[idx]
+
+    ref = minimize(negll, np.ones(2), jac=True, method="SLSQP", bounds=[(0, 2.0), (0, None)],
+                   options={"ftol": 1e-14, "maxiter": 500})
+    np.testing.assert_allclose(fit.penalties[idx], ref.x, atol=1e-3)
+    assert fit.value == pytest.approx(-ref.fun, abs=1e-8)
+
+
+# ------------------------------------------------------------- the evidence
+@settings(deadline=None, max_examples=6)
+@given(n_decisions=st.integers(1, 10**7), n_features=st.integers(1, 10**5))
+def test_evidence_cost_is_the_larger_of_bic_and_ric(n_decisions, n_features):
+    cost = mesc_selection.evidence_cost(n_decisions, n_features)
+    assert cost == pytest.approx(max(0.5 * np.log(n_decisions), np.log(n_features)))
+    # equal to the extended BIC at gamma = 1 - log(n) / (2 log F) wherever that gamma is in [0, 1]
+    if n_features > 1 and n_decisions <= n_features**2:
+        gamma = 1 - np.log(n_decisions) / (2 * np.log(n_features))
+        assert cost == pytest.approx(0.5 * np.log(n_decisions) + gamma * np.log(n_features))
+
+
+def test_evidence_is_the_refitted_loss_of_dropping_each_feature(small_fit):
+    world, demos, res = small_fit
+    assert res.selection == "evidence" and res.zeta_method == "evidence"
+    obj = MESCObjective(world.nominal_mdp, demos)
+    support = res.penalties > 0
+    assert support.any()
+    N = len(demos)
+    # every kept feature has evidence of at least the cost; features outside have none
+    assert np.all(res.evidence[support] >= res.evidence_cost)
+    assert np.all(res.evidence[~support] == 0.0)
+    assert res.evidence_cost == pytest.approx(mesc_selection.evidence_cost(obj.n_decisions, world.n_features))
+    # independent reference: each drop refitted by SLSQP on the remaining coordinates
+    base = obj(res.penalties)[0]
+    for f in np.flatnonzero(support):
+        rest = np.flatnonzero(support & (np.arange(world.n_features) != f))
+
+        def negll(x):
+            w = np.zeros(world.n_features)
+            w[rest] = x
+            v, g = obj(w)
+            return -v, -g[rest]
+
+        x0 = res.penalties[rest]
+        ref = minimize(negll, x0, jac=True, method="SLSQP", bounds=[(0, None)] * rest.size,
+                       options={"ftol": 1e-12, "maxiter": 1000}) if rest.size else None
+        dropped = -ref.fun if ref is not None else obj(np.zeros(world.n_features))[0]
+        # the library's loose refit can only under-fit the dropped model: its evidence is >= the reference's
+        assert res.evidence[f] >= N * (base - dropped) - 1e-6
+        assert res.evidence[f] == pytest.approx(N * (base - dropped), rel=0.05, abs=0.5)
+
+
+def test_zeta_combines_evidence_and_size(small_fit):
+    world, _, res = small_fit
+    s = res.sigma_nominal
+    size = 1 / (1 + np.exp(-(res.penalties - s) / s))
+    expected = size / (1 + np.exp(-(res.evidence - res.evidence_cost)))
+    np.testing.assert_allclose(res.zeta, expected, rtol=1e-12)
+    np.testing.assert_allclose(res.penalty_zeta, 1 / (1 + np.exp(-(res.penalties - res.sigma_pooled) / res.sigma_pooled)))
+    assert not res.zeta.flags.writeable and not res.evidence.flags.writeable
+
+
+def test_selected_model_is_the_truth_on_a_small_world(small_fit):
+    world, _, res = small_fit
+    found = {world.feature_names[i] for i in np.flatnonzero(res.zeta >= 0.6)}
+    assert found <= {world.feature_names[i] for i in np.flatnonzero(world.constraint_mask)}
+    assert "state 6" in found
+
+
+def test_evidence_survives_save_and_load(small_fit, tmp_path):
+    world, _, res = small_fit
+    res.save(tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["selection"] == "evidence"
+    back = load_mesc_result(tmp_path / "r.json", world.nominal_mdp)
+    np.testing.assert_array_equal(back.evidence, res.evidence)
+    np.testing.assert_allclose(back.zeta, res.zeta)
+    assert back.zeta_method == "evidence" and back.evidence_cost == res.evidence_cost
+
+
+# -------------------------------------------------- identification (Figure 1)
+def test_identifies_the_figure1_constraints_sparsely():
+    # the paper's world, deterministic, four sets of 20 demonstrations: the default call must
+    # find the constraints the demonstrations reveal (the baseline finds 7 of the 9) with at
+    # most a rare false positive, where plain maximum likelihood flags many cells nobody visits
+    world = load_paper_worlds()[0].replace(p_slip=0.0)
+    precision, plain_precision = [], []
+    for seed in (11, 12, 13, 14):
+        demos = generate_demonstrations(world.constrained_mdp, 20, rng=seed)
+        res = mesc_irl(world.nominal_mdp, demos)
+        scores = hard_constraint_scores(world.constraint_mask, res.zeta >= 0.6)
+        assert scores.recall >= 7 / 9 - 1e-12, (seed, [c.name for c in res.ranked_constraints(min_zeta=0.6)])
+        assert scores.n_false_positive <= 1
+        precision.append(scores.precision)
+        plain = mesc_irl(world.nominal_mdp, demos, selection="none")
+        plain_precision.append(hard_constraint_scores(world.constraint_mask, plain.zeta >= 0.6).precision)
+    assert np.mean(precision) >= 0.95, precision
+    assert np.mean(plain_precision) < 0.8, plain_precision
+
+
+# ------------------------------------------------------- the paper's optimiser
+def reference_eg(obj, F, steps, lr, clip, init, burn_in, tol_step, tol_gradient, cap):
+    """The paper's loop, written out as in its public code."""
+    omega = np.full(F, init)
+    best, best_error, epoch, delta, mean_error = None, np.inf, 0, np.inf, np.inf
+    while epoch <= burn_in or (delta > tol_step and mean_error > tol_gradient and epoch < steps):
+        old = omega.copy()
+        grad = obj(omega)[1]
+        mean_error = np.abs(grad).mean()
+        if epoch >= burn_in and mean_error < best_error:
+            best, best_error = omega.copy(), mean_error
+        if np.linalg.norm(grad) > clip:
+            grad = clip * grad / np.linalg.norm(grad)
+        omega = omega * np.exp(lr * grad)
+        if omega.max() > cap:
+            omega = omega * (cap / omega.max())
+        delta = np.max(np.abs(old - omega))
+        epoch += 1
+    return best if best is not None else omega
+
+
+@pytest.mark.parametrize("opts", [dict(steps=40, burn_in=10), dict(steps=60, burn_in=5, lr=1.0, cap=3.0, clip=2.0)])
+def test_eg_matches_the_papers_loop(opts):
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=3)
+    res = mesc_irl(world.nominal_mdp, demos, optimizer="eg", eg_options=opts)
+    full = dict(mesc_module.EG_DEFAULTS, **opts)
+    ref = reference_eg(MESCObjective(world.nominal_mdp, demos), world.n_features, **full)
+    np.testing.assert_allclose(res.penalties, ref, rtol=1e-12)
+    assert res.selection == "none" and res.zeta_method == "penalty" and res.evidence is None
+
+
+def test_one_eg_step_is_multiplicative_with_the_clipped_gradient():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 10, rng=0)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    w0 = np.full(world.n_features, 0.5)
+    g = obj(w0)[1]
+    g = g * min(1.0, 0.7 / np.linalg.norm(g))
+    res = mesc_irl(world.nominal_mdp, demos, optimizer="eg",
+                   eg_options=dict(steps=1, burn_in=0, init=0.5, clip=0.7, lr=0.3))
+    # the best iterate after a burn-in of 0 and one step is the start; a second step shows the update
+    np.testing.assert_allclose(res.penalties, w0)
+    res2 = mesc_irl(world.nominal_mdp, demos, optimizer="eg",
+                    eg_options=dict(steps=2, burn_in=1, init=0.5, clip=0.7, lr=0.3, tol_gradient=0.0, tol_step=0.0))
+    np.testing.assert_allclose(res2.penalties, w0 * np.exp(0.3 * g), rtol=1e-12)
+
+
+# ------------------------------------------------------------ size and BLAS
+def test_auto_switches_to_one_l1_fit_and_preconditioning_on_large_problems(monkeypatch):
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=1)
+    monkeypatch.setattr(mesc_module, "EVIDENCE_MAX_FEATURES", 5)
+    monkeypatch.setattr(mesc_module, "PRECONDITION_MIN_FEATURES", 5)
+    calls = []
+    original = mesc_module.MESCObjective.feature_counts
+
+    def spy(self, w):
+        calls.append(True)
+        return original(self, w)
+
+    monkeypatch.setattr(mesc_module.MESCObjective, "feature_counts", spy)
+    res = mesc_irl(world.nominal_mdp, demos)
+    assert res.selection == "l1" and res.zeta_method == "evidence" and calls
+    # held-others evidence: the likelihood lost by zeroing each penalty alone
+    obj0 = MESCObjective(world.nominal_mdp, demos)
+    base = obj0(res.penalties)[0]
+    for f in range(world.n_features):
+        w = np.array(res.penalties)
+        w[f] = 0.0
+        assert res.evidence[f] == pytest.approx(max(len(demos) * (base - obj0(w)[0]), 0.0), abs=1e-9)
+    # the L1 strength is the evidence cost per demonstration: its optimality conditions hold
+    obj = MESCObjective(world.nominal_mdp, demos)
+    lam = mesc_selection.evidence_cost(obj.n_decisions, world.n_features) / len(demos)
+    pos = res.penalties > 1e-6
+    np.testing.assert_allclose(res.gradient[pos], lam, atol=5e-3)
+    assert np.all(res.gradient[~pos] <= lam + 5e-3)
+
+
+def test_blas_is_held_to_one_thread_during_a_fit(monkeypatch):
+    from threadpoolctl import threadpool_info
+
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 10, rng=0)
+    seen = []
+    original = mesc_module.MESCObjective._evaluate
+
+    def spy(self, w):
+        seen.extend(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas")
+        return original(self, w)
+
+    monkeypatch.setattr(mesc_module.MESCObjective, "_evaluate", spy)
+    mesc_irl(world.nominal_mdp, demos, selection="none")
+    assert seen and set(seen) == {1}
+
+
+# ------------------------------------------------------------------ bad input
+def test_bad_selection_input():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 5, rng=0)
+    nom = world.nominal_mdp
+    with pytest.raises(ValueError, match=r"selection must be one of 'auto', 'evidence', 'l1', 'none' \(got 'bic'\)"):
+        mesc_irl(nom, demos, selection="bic")
+    with pytest.raises(ValueError, match=r"optimizer must be one of 'lbfgsb', 'eg' \(got 'adam'\)"):
+        mesc_irl(nom, demos, optimizer="adam")
+    with pytest.raises(ValueError, match=r"optimizer='eg' fits all penalties at once; use selection='none' \(got 'evidence'\)"):
+        mesc_irl(nom, demos, optimizer="eg", selection="evidence")
+    with pytest.raises(ValueError, match="l1 and l2 apply to selection='l1' or 'none'"):
+        mesc_irl(nom, demos, selection="evidence", l1=0.1)
+    with pytest.raises(ValueError, match=r"l2 applies to selection='none' \(got l2=1.0 with selection='l1'\)"):
+        mesc_irl(nom, demos, selection="l1", l2=1.0)
+    with pytest.raises(ValueError, match=r"l1 must be >= 0"):
+        mesc_irl(nom, demos, l1=-0.5)
+    with pytest.raises(ValueError, match=r"precondition must be True, False or 'auto' \(got 'yes'\)"):
+        mesc_irl(nom, demos, precondition="yes")
+    with pytest.raises(TypeError, match=r"eg_options must be a dict \(got list\)"):
+        mesc_irl(nom, demos, optimizer="eg", eg_options=[1])
+    with pytest.raises(ValueError, match=r"eg_options has unknown keys \['rate'\]"):
+        mesc_irl(nom, demos, optimizer="eg", eg_options={"rate": 1})
+    with pytest.raises(ValueError, match=r"eg_options\['lr'\] must be > 0"):
+        mesc_irl(nom, demos, optimizer="eg", eg_options={"lr": 0.0})
+    with pytest.raises(ValueError, match=r"eg_options\['steps'\] must be an integer >= 1 \(got 0\)"):
+        mesc_irl(nom, demos, optimizer="eg", eg_options={"steps": 0})
+    w = np.zeros(world.n_features)
+    with pytest.raises(ValueError, match="evidence and evidence_cost must be given together"):
+        MESCResult.from_penalties(nom, w, evidence=np.zeros(world.n_features))
+    with pytest.raises(ValueError, match=r"evidence must have shape \(27\) \(got \(3,\)\)"):
+        MESCResult.from_penalties(nom, w, evidence=np.zeros(3), evidence_cost=1.0)
+    with pytest.raises(ValueError, match="evidence must be non-negative log-likelihood losses"):
+        MESCResult.from_penalties(nom, w, evidence=-np.ones(world.n_features), evidence_cost=1.0)
+    with pytest.raises(ValueError, match=r"evidence_cost must be >= 0"):
+        MESCResult.from_penalties(nom, w, evidence=np.zeros(world.n_features), evidence_cost=-1.0)
