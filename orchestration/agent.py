@@ -97,6 +97,14 @@ class Episode:
         The environment ended the episode (goal, hole, ...).
     truncated : bool
         The environment truncated it (its time limit) or ``max_steps`` was reached.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ep = Episode(np.array([0, 1, 2]), np.array([1, 1]), np.array([-1.0, -1.0]), -2.0,
+    ...              True, False)
+    >>> ep.n_steps, ep.to_demonstrations().trajectory(0)
+    (2, ([0, 1, 2], [1, 1]))
     """
 
     states: np.ndarray

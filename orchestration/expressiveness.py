@@ -58,7 +58,18 @@ PAPER_SETTINGS = dict(phi1=0.01, phi2=0.01, beta=2.0, sigma2=1.0)
 #: probabilities are those of the canonical model.
 CANONICAL_ON_SQ_SCALE = dict(phi1=0.022 * 6.0**4, phi2=0.05, beta=12.0, sigma2=1.0 / 36.0)
 
+#: The default Theorem-2 witness settings: the paper's orchestrator settings with the
+#: canonical lateral inhibition (phi1, phi2) moved to the scale of the sq's. Only phi1
+#: matters for the effect: with phi1 = 0.01 and attribute differences below 1,
+#: ``exp(-phi1 D**2)`` is about 1 for every pair, so the inhibition does not depend on
+#: distance and cannot favour the middle option.
+WITNESS_SETTINGS = dict(phi1=0.022 * 6.0**4, phi2=0.05, beta=2.0, sigma2=1.0, n_steps=100)
+
 _MAX_SEQUENCES = 1_000_000
+
+#: Margin by which WA's probability of an action must exceed every other's to count as
+#: "strictly most likely" (rounding of the sq's is far below it).
+_MARGIN = 1e-12
 
 
 def _as_distribution(name, value, size=None) -> np.ndarray:
@@ -143,9 +154,9 @@ def wa_most_likely_interval(sq_n, sq_c, action):
     Returns
     -------
     tuple of float or None
-        ``(low, high)``: the open interval of ``w_n`` in ``[0, 1]`` (closed at an end
-        that is 0 or 1 and attained) where ``p_WA(action) > p_WA(a)`` for every other
-        ``a``; ``None`` when no weights do.
+        ``(low, high)``: the interval of ``w_n`` in ``[0, 1]`` where
+        ``p_WA(action) > p_WA(a) + 1e-12`` for every other ``a`` (open at an end where
+        a condition binds); ``None`` when no weights do.
 
     Notes
     -----
@@ -162,8 +173,8 @@ def wa_most_likely_interval(sq_n, sq_c, action):
     >>> from orchestration.expressiveness import wa_most_likely_interval
     >>> print(wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 1))
     None
-    >>> wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 2)
-    (0.5, 1.0)
+    >>> [round(x, 6) for x in wa_most_likely_interval([1/6, 1/3, 1/2], [1/2, 1/3, 1/6], 2)]
+    [0.5, 1.0]
     """
     sq_n = _as_distribution("sq_n", sq_n)
     sq_c = _as_distribution("sq_c", sq_c, sq_n.size)
@@ -176,16 +187,16 @@ def wa_most_likely_interval(sq_n, sq_c, action):
         if a == action:
             continue
         dn, dc = sq_n[action] - sq_n[a], sq_c[action] - sq_c[a]
-        slope = dn - dc  # condition: dc + w slope > 0
-        if slope == 0.0:
-            if dc <= 0.0:
+        slope = dn - dc  # condition: dc + w slope > margin
+        if abs(slope) <= _MARGIN:
+            if dc <= _MARGIN:
                 return None
-        elif slope > 0.0:  # w > -dc / slope
-            root = -dc / slope
+        elif slope > 0.0:  # w > (margin - dc) / slope
+            root = (_MARGIN - dc) / slope
             if root > low or (root == low and not low_open):
                 low, low_open = root, True
-        else:  # w < -dc / slope
-            root = -dc / slope
+        else:  # w < (margin - dc) / slope
+            root = (_MARGIN - dc) / slope
             if root < high or (root == high and not high_open):
                 high, high_open = root, True
     if low > high or (low == high and (low_open or high_open)):
@@ -236,6 +247,13 @@ class CompromiseWitness:
     wa_interval : None
         :func:`wa_most_likely_interval` for the middle action: ``None``, no WA weights
         make it the most likely.
+
+    Examples
+    --------
+    >>> from orchestration.expressiveness import compromise_witness
+    >>> orch = compromise_witness().orchestrator()
+    >>> orch.action_probabilities(0).round(3).tolist()
+    [0.235, 0.457, 0.308]
     """
 
     sq_nominal: np.ndarray
@@ -264,10 +282,10 @@ def compromise_witness(sq_nominal=None, sq_constrained=None, *, weights=(0.55, 0
     weights : pair of float, default (0.55, 0.45)
         The paper's attention weights.
     settings : dict, optional
-        MDFT settings (``phi1``, ``phi2``, ``beta``, ``sigma2``, ``n_steps``). Default: the
-        canonical compromise parameters moved to the scale of the sq's
-        (``phi1 = 0.022 * 6**4``, ``phi2 = 0.05``, ``beta = 12``, ``sigma2 = 1/36``) with
-        ``n_steps = 500``.
+        MDFT settings (``phi1``, ``phi2``, ``beta``, ``sigma2``, ``n_steps``). Default
+        :data:`WITNESS_SETTINGS`: the paper's orchestrator settings (``beta = 2``,
+        ``sigma2 = 1``, ``T = 100``) except ``phi1 = 0.022 * 6**4`` and ``phi2 = 0.05``, the
+        canonical lateral inhibition moved to the scale of the sq's.
 
     Returns
     -------
@@ -291,7 +309,7 @@ def compromise_witness(sq_nominal=None, sq_constrained=None, *, weights=(0.55, 0
     >>> from orchestration.expressiveness import compromise_witness
     >>> wit = compromise_witness()
     >>> wit.probabilities.round(3).tolist(), wit.wa_interval
-    ([0.139, 0.498, 0.363], None)
+    ([0.235, 0.457, 0.308], None)
     """
     if sq_nominal is None and sq_constrained is None:
         sq_n, sq_c = (p.copy() for p in PAPER_COMPROMISE_SQ)
@@ -299,7 +317,7 @@ def compromise_witness(sq_nominal=None, sq_constrained=None, *, weights=(0.55, 0
         sq_n = _as_distribution("sq_nominal", sq_nominal, 3)
         sq_c = _as_distribution("sq_constrained", sq_constrained, 3)
     w = _check_weights(weights)
-    cfg = dict(CANONICAL_ON_SQ_SCALE, n_steps=500) if settings is None else dict(settings)
+    cfg = dict(WITNESS_SETTINGS) if settings is None else dict(settings)
     unknown = set(cfg) - {"phi1", "phi2", "beta", "sigma2", "n_steps"}
     if unknown:
         raise ValueError(f"settings has unknown keys {sorted(unknown)}; use phi1, phi2, beta, "
@@ -426,6 +444,13 @@ class MDFTvsWAInstance:
     exact_fit_probabilities : ndarray, shape (n_actions,)
     exact_fit_js_divergence : float
         Its JS divergence: the part of ``js_divergence`` that no amount of data removes.
+
+    Examples
+    --------
+    >>> from orchestration import mdft_vs_wa_instance
+    >>> inst = mdft_vs_wa_instance(3, n_actions=3, n_choices=30, n_steps=10)
+    >>> inst.wa_probabilities.shape, inst.seed
+    ((3,), 3)
     """
 
     seed: int
@@ -549,6 +574,13 @@ class MDFTvsWAResult:
         error over instances.
     mean_exact_js, se_exact_js : float
         The same for the attention fitted to the exact WA distributions.
+
+    Examples
+    --------
+    >>> from orchestration import mdft_vs_wa
+    >>> res = mdft_vs_wa(1, rng=0, n_actions=3, n_choices=30, n_steps=10)
+    >>> res.n_instances, str(res.se_js)
+    (1, 'nan')
     """
 
     instances: tuple

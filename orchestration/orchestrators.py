@@ -137,12 +137,50 @@ class Orchestrator(abc.ABC):
         """Exact distribution of one decision in ``state``, shape (n_actions,)."""
 
     def act(self, state, rng=None) -> int:
-        """One decision in ``state``: the chosen action."""
+        """One decision in ``state``: the chosen action.
+
+        Parameters
+        ----------
+        state : int
+            A non-terminal state.
+        rng : None, int or numpy.random.Generator
+            Source of randomness (unused by Greedy).
+
+        Examples
+        --------
+        >>> import irl, orchestration
+        >>> world = irl.GridWorld(3, 0, 8)
+        >>> wa = orchestration.WeightedAverageOrchestrator(
+        ...     world.nominal_mdp, world.constrained_mdp, weights=(0.5, 0.5))
+        >>> wa.act(0, rng=1) == wa.act(0, rng=1)
+        True
+        """
         s = self._state(state)
         return int(self._decide(np.array([s]), np.random.default_rng(rng))[0])
 
     def decide_many(self, states, rng=None) -> np.ndarray:
-        """Independent decisions in each of ``states``, shape (n,) of int."""
+        """Independent decisions, one in each of ``states``.
+
+        Parameters
+        ----------
+        states : array_like of int, shape (n,)
+            Non-terminal states (repeats allowed: one decision each).
+        rng : None, int or numpy.random.Generator
+
+        Returns
+        -------
+        ndarray of int, shape (n,)
+            The chosen actions. For MDFT one compiled call of :func:`mdft.decide` per
+            pattern of feasible actions.
+
+        Examples
+        --------
+        >>> import irl, orchestration
+        >>> world = irl.GridWorld(3, 0, 8)
+        >>> greedy = orchestration.GreedyOrchestrator(world.nominal_mdp, world.constrained_mdp)
+        >>> greedy.decide_many([0, 0, 4]).tolist() == [greedy.act(0), greedy.act(0), greedy.act(4)]
+        True
+        """
         arr = self._states(states)
         if arr.size == 0:
             return np.empty(0, dtype=np.int64)
@@ -155,6 +193,15 @@ class Orchestrator(abc.ABC):
         """``policy[s, a]``: :meth:`action_probabilities` of every non-terminal state.
 
         Terminal rows are uniform over the feasible actions (no decision is taken there).
+
+        Examples
+        --------
+        >>> import irl, orchestration
+        >>> world = irl.GridWorld(3, 0, 8)
+        >>> wa = orchestration.WeightedAverageOrchestrator(
+        ...     world.nominal_mdp, world.constrained_mdp, weights=(0.5, 0.5))
+        >>> wa.policy().shape
+        (9, 8)
         """
         prefs = self.preferences
         out = prefs.feasible / prefs.feasible.sum(axis=1, keepdims=True)
@@ -492,7 +539,10 @@ class MDFTOrchestrator(Orchestrator):
             if actions.size == 1:
                 out[rows] = actions[0]
             elif self.threshold is None:
-                M = self._M[states[rows]][:, actions]
+                if actions.size == self.n_actions:
+                    M = self._M[states if rows.size == states.size else states[rows]]
+                else:
+                    M = self._M[states[rows]][:, actions]
                 idx = mdft.decide(M, self._w, phi1=self.phi1, phi2=self.phi2, beta=self.beta,
                                   sigma2=self.sigma2, n_steps=self.n_steps, rng=generator)
                 out[rows] = actions[idx]

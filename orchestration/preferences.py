@@ -35,6 +35,19 @@ def _as_temperature(temperature) -> float:
     return t
 
 
+def _check_feasible(feasible, shape) -> np.ndarray:
+    """``feasible`` as a boolean mask of ``shape`` allowing an action in every state, or raise."""
+    mask = np.asarray(feasible)
+    if mask.dtype != bool:
+        raise TypeError(f"feasible must be a boolean mask (got dtype {mask.dtype})")
+    if mask.shape != shape:
+        raise ValueError(f"feasible must have shape {shape} (got {mask.shape})")
+    if not mask.any(axis=1).all():
+        s = int(np.flatnonzero(~mask.any(axis=1))[0])
+        raise ValueError(f"feasible must allow at least one action in every state (state {s} has none)")
+    return mask
+
+
 def masked_softmax(q: np.ndarray, feasible: np.ndarray, temperature: float) -> np.ndarray:
     """Row-wise softmax of ``q / temperature`` over the ``feasible`` entries (zero elsewhere)."""
     z = np.where(feasible, q / temperature, -np.inf)
@@ -70,8 +83,8 @@ class ActionPreferences:
     >>> import irl, orchestration
     >>> world = irl.GridWorld(3, 0, 8, p_slip=0.0, constrained_states=(4,))
     >>> prefs = orchestration.action_preferences(world.nominal_mdp, world.constrained_mdp)
-    >>> prefs.n_states, prefs.n_actions
-    (9, 8)
+    >>> prefs
+    ActionPreferences(n_states=9, n_actions=8, temperature=1, n_terminal=1, nominal=MDP)
     >>> bool(abs(prefs.sq_constrained.sum(axis=1) - 1).max() < 1e-12)
     True
     """
@@ -94,17 +107,10 @@ class ActionPreferences:
                 raise ValueError(f"{key} must contain only finite values (got NaN or infinity)")
             object.__setattr__(self, key, _readonly(arr))
         shape = self.q_nominal.shape
-        feasible = np.asarray(self.feasible)
-        if feasible.dtype != bool:
-            raise TypeError(f"feasible must be a boolean mask (got dtype {feasible.dtype})")
         for key in ("q_constrained", "sq_nominal", "sq_constrained"):
             if getattr(self, key).shape != shape:
                 raise ValueError(f"{key} must have the shape of q_nominal {shape} (got {getattr(self, key).shape})")
-        if feasible.shape != shape:
-            raise ValueError(f"feasible must have the shape of q_nominal {shape} (got {feasible.shape})")
-        if not feasible.any(axis=1).all():
-            s = int(np.flatnonzero(~feasible.any(axis=1))[0])
-            raise ValueError(f"feasible must allow at least one action in every state (state {s} has none)")
+        feasible = _check_feasible(self.feasible, shape)
         if self.nominal is not None:
             if not isinstance(self.nominal, irl.MDP):
                 raise TypeError(f"nominal must be an irl.MDP or None (got {type(self.nominal).__name__})")
@@ -130,6 +136,11 @@ class ActionPreferences:
         object.__setattr__(self, "feasible", _readonly(feasible))
         object.__setattr__(self, "terminal", _readonly(terminal))
         object.__setattr__(self, "temperature", _as_temperature(self.temperature))
+
+    def __repr__(self):
+        return (f"ActionPreferences(n_states={self.n_states}, n_actions={self.n_actions}, "
+                f"temperature={self.temperature:g}, n_terminal={int(self.terminal.sum())}, "
+                f"nominal={'MDP' if self.nominal is not None else None})")
 
     @property
     def n_states(self) -> int:
@@ -256,17 +267,7 @@ def action_preferences(nominal, constrained, *, temperature=1.0, feasible=None,
     _check_pair(nominal, constrained)
     temperature = _as_temperature(temperature)
     shape = (nominal.n_states, nominal.n_actions)
-    if feasible is None:
-        mask = np.ones(shape, dtype=bool)
-    else:
-        mask = np.asarray(feasible)
-        if mask.dtype != bool:
-            raise TypeError(f"feasible must be a boolean mask (got dtype {mask.dtype})")
-        if mask.shape != shape:
-            raise ValueError(f"feasible must have shape {shape} (got {mask.shape})")
-        if not mask.any(axis=1).all():
-            s = int(np.flatnonzero(~mask.any(axis=1))[0])
-            raise ValueError(f"feasible must allow at least one action in every state (state {s} has none)")
+    mask = np.ones(shape, dtype=bool) if feasible is None else _check_feasible(feasible, shape)
     qn = irl.value_iteration(nominal, max_iter=max_iter, tol=tol).q_values
     qc = irl.value_iteration(constrained, max_iter=max_iter, tol=tol).q_values
     return ActionPreferences(

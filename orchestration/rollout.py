@@ -127,6 +127,11 @@ def rollout(orchestrator, n_trajectories, *, rng=None, max_length=None, start=No
             f"mdp must have the orchestrator's {orchestrator.n_states} states and "
             f"{orchestrator.n_actions} actions (got {mdp.n_states} and {mdp.n_actions})"
         )
+    if not np.array_equal(mdp.terminal, orchestrator.preferences.terminal):
+        raise ValueError(
+            "mdp must have the terminal states of the orchestrator's MDPs (they differ): the "
+            "orchestrator takes no decision in a terminal state"
+        )
     p0 = _start_distribution(start, mdp)
     if np.any((p0 > 0) & mdp.terminal):
         raise ValueError("start must put no mass on terminal states: a trajectory would be empty")

@@ -18,3 +18,19 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data folder not found at {SHARED_DATA}; set PYMDFT_DATA")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def small_world():
+    """A 4 x 4 gridworld with slip and two constrained cells, for orchestration tests."""
+    import irl
+
+    return irl.GridWorld(4, 0, 15, constrained_states=(5, 6), p_slip=0.1)
+
+
+@pytest.fixture(scope="session")
+def small_prefs(small_world):
+    """Action preferences of ``small_world``'s nominal and true constrained MDPs."""
+    import orchestration
+
+    return orchestration.action_preferences(small_world.nominal_mdp, small_world.constrained_mdp)
