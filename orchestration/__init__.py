@@ -15,6 +15,7 @@ from .orchestrators import (
 from .rollout import rollout
 from .agent import Episode, OrchestratorAgent, run_episode
 from .expressiveness import MDFTvsWAInstance, MDFTvsWAResult, mdft_vs_wa, mdft_vs_wa_instance
+from .guided_tour import TourResult, tour
 
 __all__ = [
     "ActionPreferences",
@@ -31,4 +32,6 @@ __all__ = [
     "MDFTvsWAResult",
     "mdft_vs_wa_instance",
     "mdft_vs_wa",
+    "TourResult",
+    "tour",
 ]
