@@ -28,6 +28,7 @@ figcaption { color: #555; font-size: 0.9em; }
 code, pre { background: #f6f6f6; border-radius: 3px; }
 code { padding: 0 0.25em; }
 pre { padding: 0.6em 0.8em; overflow-x: auto; }
+ul.highlights { background: #f5f8fc; border-left: 4px solid #4a7bb7; padding: 0.6em 1em 0.6em 2em; }
 footer { margin-top: 2.5em; color: #777; font-size: 0.85em; }
 """
 
@@ -104,25 +105,24 @@ def _figure_html(name: str, path: Path) -> str:
             f"<figcaption>{caption} ({html.escape(name)})</figcaption></figure>")
 
 
-def render_html(state: dict, figures: dict) -> str:
-    """The report as one HTML page: a section per step with its table and figures.
+def render_html(result) -> str:
+    """The report as one HTML page: highlights, then a section per step with its table and figures.
 
     Parameters
     ----------
-    state : dict
-        ``tables``, ``seconds``, ``seed``, ``quick`` and ``compiled`` of the run.
-    figures : dict of str to Path
-        The PNG files, by name.
+    result : TourResult
+        A finished tour, whose PNG figures are on disk.
 
     Returns
     -------
     str
     """
-    seconds = state["seconds"]
-    seed = "a Generator" if state["seed"] is None else f"seed {state['seed']}"
+    seconds = result.seconds
+    figures = result.files
+    seed = "a Generator" if result.seed is None else f"seed {result.seed}"
     timing = ", ".join(f"{k} {v:.1f} s" for k, v in seconds.items())
     sections = []
-    for number, table in enumerate(state["tables"], start=1):
+    for number, table in enumerate(result.tables, start=1):
         figs = "".join(_figure_html(n, figures[n]) for n in _FIGURE_OF.get(table.title, ())
                        if n in figures)
         sections.append(
@@ -133,8 +133,9 @@ def render_html(state: dict, figures: dict) -> str:
                        for c, d in NEXT_COMMANDS)
     docs = ", ".join(f"<code>{html.escape(d)}</code>" for d in DOCS)
     compiled = {True: "loaded from the cache", False: "compiled in this run",
-                None: "compiled or loaded"}[state["compiled"]]
-    size = "quick (test) sizes" if state["quick"] else "default sizes"
+                None: "compiled or loaded"}[result.compiled]
+    size = "quick (test) sizes" if result.quick else "default sizes"
+    highlights = "".join(f"<li>{html.escape(h)}</li>" for h in result.highlights)
     return f"""<!DOCTYPE html>
 <html lang="en">
 <head>
@@ -148,6 +149,7 @@ def render_html(state: dict, figures: dict) -> str:
 <p class="lead">Human-like trade-offs in constrained environments, in three steps: a cognitive
 model of choice (MDFT), constraints learned from demonstrations (MESC-IRL), and orchestrators
 that trade the goal off against the constraints (Glazier et al., 2022).</p>
+<ul class="highlights">{highlights}</ul>
 {''.join(sections)}
 <section><h2>Next commands to try</h2>
 <ul>{commands}</ul>

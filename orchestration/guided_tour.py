@@ -50,7 +50,7 @@ def settings(quick: bool = False) -> dict:
     (100, 30)
     """
     if quick:
-        return dict(n_samples=500, n_trajectories_effects=3, n_demonstrations=30,
+        return dict(n_samples=3000, n_trajectories_effects=3, n_demonstrations=30,
                     n_rollouts=30, p_slip=0.1, max_length=200, dpi=60)
     return dict(n_samples=20_000, n_trajectories_effects=5, n_demonstrations=100,
                 n_rollouts=200, p_slip=0.1, max_length=500, dpi=100)
@@ -126,6 +126,8 @@ class TourResult:
         Wall time of each step and in total.
     tables : tuple of TourTable
         The three tables, as printed and as in the report.
+    highlights : tuple of str
+        One sentence per step that sums up its numbers.
 
     Examples
     --------
@@ -150,6 +152,7 @@ class TourResult:
     compiled: object
     seconds: dict
     tables: tuple = field(default=())
+    highlights: tuple = field(default=())
 
     def __repr__(self) -> str:
         shown = sum(e["shown"] for e in self.effects)
@@ -167,6 +170,7 @@ class TourResult:
             "orchestrators": self.orchestrators, "compiled": self.compiled,
             "seconds": dict(self.seconds),
             "tables": [t.to_dict() for t in self.tables],
+            "highlights": list(self.highlights),
             "files": {name: path.name for name, path in self.files.items()},
         }
 
@@ -350,16 +354,16 @@ def tour(out_dir, *, rng=0, quick=False, progress=None) -> TourResult:
     effects = run(1, lambda: _effects(s, g_effects))
     world, demos, learned, constraints = run(2, lambda: _constraints(s, g_demos))
     runs, orchestrators = run(3, lambda: _orchestrators(s, world, learned, g_rollouts))
-    tables = _tables(effects[1], constraints, orchestrators, s)
-    state = dict(out=out, seed=seed, quick=quick, settings=s, effects=effects[1],
-                 constraints=constraints, orchestrators=orchestrators, compiled=compiled,
-                 seconds=seconds, tables=tables)
-    files = run(4, lambda: _write(state, effects[0], world, demos, learned, runs, g_figures))
+    figures = run(4, lambda: _write_figures(out, s["dpi"], effects[0], world, demos, learned,
+                                            runs, orchestrators, g_figures))
     seconds["total"] = time.perf_counter() - start_all
-    result = TourResult(out, files, seed, quick, s, effects[1], constraints, orchestrators,
-                        compiled, dict(seconds), tables)
-    # results.json last, so that it carries the total time
-    files["results.json"].write_text(json.dumps(result.to_dict(), indent=2))
+    files = {**figures, "results.json": out / "results.json", "report.html": out / "report.html"}
+    result = TourResult(
+        out, files, seed, quick, s, effects[1], constraints, orchestrators, compiled,
+        dict(seconds), _tables(effects[1], constraints, orchestrators, s),
+        _highlights(effects[1], constraints, orchestrators),
+    )
+    _write_report(result)
     if progress is not None:
         progress(len(steps), len(steps), "done")
     return result
@@ -540,29 +544,49 @@ def _tables(effects, constraints, orchestrators, s) -> tuple:
     return effects_table, constraints_table, orch_table
 
 
-# ----------------------------------------------------------------------------- output
-def _write(state, effects, world, demos, learned, runs, gen) -> dict:
-    from ._tour_report import render_html
+def _highlights(effects, constraints, orchestrators) -> tuple:
+    """One sentence per step, computed from its numbers."""
+    shown = [e for e in effects if e["shown"]]
+    zs = ", ".join(f"{e['name']} z = {e['z']:.1f}" if e["z"] is not None else e["name"]
+                   for e in effects)
+    first = f"{len(shown)} of {len(effects)} context effects shown ({zs})."
+    c = constraints
+    second = (f"{c['n_true_positive']} of {c['n_true']} true constraints learned with "
+              f"{c['n_false_positive']} false alarm{'s' if c['n_false_positive'] != 1 else ''} "
+              f"(precision {c['precision']:.2f}, recall {c['recall']:.2f}).")
+    by = {(r["method"], r["w_c"]): r for r in orchestrators}
+    lo, hi = WEIGHTS_W_C[0], WEIGHTS_W_C[-1]
+    md_lo, md_hi = by[("MDFT", lo)], by[("MDFT", hi)]
+    fewer = sum(by[("MDFT", w)]["violations"] < by[("WA", w)]["violations"] for w in WEIGHTS_W_C)
+    third = (f"From w_c = {lo:g} to {hi:g}, MDFT's violations go from {md_lo['violations']:.2f} "
+             f"to {md_hi['violations']:.2f} per trajectory and its paths from "
+             f"{md_lo['length']:.1f} to {md_hi['length']:.1f} steps; MDFT violates fewer "
+             f"constraints than WA at {fewer} of {len(WEIGHTS_W_C)} weights.")
+    return first, second, third
 
-    out = state["out"]
-    dpi = state["settings"]["dpi"]
+
+# ----------------------------------------------------------------------------- output
+def _write_figures(out, dpi, effects, world, demos, learned, runs, rows, gen) -> dict:
     figures = {
         "effects.png": lambda: _effects_figure(effects),
         "constraints.png": lambda: _constraints_figure(world, demos, learned),
         "trajectories.png": lambda: _trajectories_figure(world, runs, gen),
-        "tradeoff.png": lambda: _tradeoff_figure(state["orchestrators"]),
+        "tradeoff.png": lambda: _tradeoff_figure(rows),
     }
     files = {}
     for name, make in figures.items():
         path = out / name
         make().savefig(path, dpi=dpi)
         files[name] = path
-    files["results.json"] = out / "results.json"
-    files["results.json"].write_text("{}")  # replaced once the total time is known
-    report = out / "report.html"
-    report.write_text(render_html(state, {n: files[n] for n in FIGURES}), encoding="utf-8")
-    files["report.html"] = report
     return files
+
+
+def _write_report(result) -> None:
+    """``results.json`` and ``report.html`` of a finished tour."""
+    from ._tour_report import render_html
+
+    result.files["results.json"].write_text(json.dumps(result.to_dict(), indent=2))
+    result.files["report.html"].write_text(render_html(result), encoding="utf-8")
 
 
 def _effects_figure(effects):
@@ -601,9 +625,9 @@ def _trajectories_figure(world, runs, gen):
         plot_rollouts(ax, world, {f"WA {label}": runs[f"wa-{w_c}"],
                                   f"MDFT {label}": runs[f"mdft-{w_c}"]},
                       n_shown=15, rng=gen)
-        legend = ax.get_legend()
-        legend.set_bbox_to_anchor((0.0, 1.0))
-        legend.set_loc("upper left")
+        ax.get_legend().remove()  # one legend below the panel instead of one beside it
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncols=2, fontsize="small",
+                  frameon=False)
         ax.set_title(f"weights (w_n, w_c) = {label}", fontsize="medium")
     return fig
 
