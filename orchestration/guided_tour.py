@@ -37,6 +37,8 @@ __all__ = ["TourResult", "TourTable", "tour"]
 MIN_ZETA = 0.6
 #: Constraint weights w_c of the orchestrator comparison (w_n = 1 - w_c).
 WEIGHTS_W_C = (0.2, 0.5, 0.8)
+#: Colours of WA and MDFT in every figure (those of the trade-off figure's curves).
+_COLOURS = ("tab:blue", "tab:orange")
 #: Figures written by :func:`tour`, in the order of the story.
 FIGURES = ("effects.png", "constraints.png", "trajectories.png", "tradeoff.png")
 
@@ -131,14 +133,11 @@ class TourResult:
 
     Examples
     --------
-    >>> import tempfile
-    >>> from orchestration import tour
-    >>> with tempfile.TemporaryDirectory() as out:
-    ...     result = tour(out, rng=0, quick=True)
-    ...     sorted(result.files)
-    ['constraints.png', 'effects.png', 'report.html', 'results.json', 'trajectories.png', 'tradeoff.png']
-    >>> [t.title for t in result.tables]
-    ['Context effects', 'Constraints learned from demonstrations', 'Orchestrators']
+    >>> import dataclasses
+    >>> [f.name for f in dataclasses.fields(TourResult)][:4]
+    ['out_dir', 'files', 'seed', 'quick']
+
+    See :func:`tour` for a run.
     """
 
     out_dir: Path
@@ -314,6 +313,10 @@ def tour(out_dir, *, rng=0, quick=False, progress=None) -> TourResult:
     [0, 1, 2, 3, 4, 5]
     >>> [e["name"] for e in result.effects]
     ['similarity', 'attraction', 'compromise']
+    >>> sorted(result.files)
+    ['constraints.png', 'effects.png', 'report.html', 'results.json', 'trajectories.png', 'tradeoff.png']
+    >>> [t.title for t in result.tables]
+    ['Context effects', 'Constraints learned from demonstrations', 'Orchestrators']
     """
     _check_progress(progress)
     if not isinstance(quick, bool):
@@ -618,16 +621,18 @@ def _trajectories_figure(world, runs, gen):
 
     from .plot import plot_rollouts
 
-    fig = Figure(figsize=(5.0 * len(WEIGHTS_W_C), 4.4), layout="constrained")
+    fig = Figure(figsize=(3.9 * len(WEIGHTS_W_C), 4.3), layout="constrained")
     axes = fig.subplots(1, len(WEIGHTS_W_C))
     for ax, w_c in zip(np.atleast_1d(axes), WEIGHTS_W_C):
         label = f"({1 - w_c:.1f}, {w_c:.1f})"
         plot_rollouts(ax, world, {f"WA {label}": runs[f"wa-{w_c}"],
                                   f"MDFT {label}": runs[f"mdft-{w_c}"]},
-                      n_shown=15, rng=gen)
+                      n_shown=15, rng=gen, colors=_COLOURS)
         ax.get_legend().remove()  # one legend below the panel instead of one beside it
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncols=2, fontsize="small",
-                  frameon=False)
+        legend = ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncols=2,
+                           frameon=False)
+        for handle in legend.legend_handles:
+            handle.set_alpha(1.0)
         ax.set_title(f"weights (w_n, w_c) = {label}", fontsize="medium")
     return fig
 
@@ -644,6 +649,7 @@ def _tradeoff_figure(rows):
             mine = [r for r in rows if r["method"] == method]
             curves[method] = (np.array([r[metric] for r in mine]),
                               np.array([r[f"{metric}_se"] for r in mine]))
+        ax.set_prop_cycle(color=list(_COLOURS))  # WA and MDFT as in the trajectories figure
         plot_weight_sweep(ax, list(WEIGHTS_W_C), curves, baselines={"Greedy": greedy[metric]},
                           ylabel=label)
     fig.suptitle("The goal traded off against the constraints (means ± s.e.)")
