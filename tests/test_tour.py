@@ -261,3 +261,32 @@ def test_command_errors_are_one_line_exit_2(tmp_path, capsys, argv, message):
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert re.search(message, err)
+
+
+def test_step_display_ticks_on_a_terminal_and_prints_lines_elsewhere():
+    import io
+    import time
+
+    from orchestration.cli.tour import _Steps
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    for stream, live in ((Terminal(), True), (io.StringIO(), False)):
+        steps = _Steps(False, stream=stream)
+        steps(0, 2, "compiling the kernels")
+        time.sleep(1.3 if live else 0.0)
+        steps(1, 2, "the effects")
+        steps(2, 2, "done")
+        text = stream.getvalue()
+        assert text.startswith("[1/2] compiling the kernels ...\n")
+        assert "[2/2] the effects ...\n" in text
+        assert len(re.findall(r"done in \d+\.\d s", text)) == 2
+        assert bool(re.search(r"\r      1 s\x1b\[K", text)) == live  # the clock ticked
+    quiet = io.StringIO()
+    steps = _Steps(True, stream=quiet)
+    steps(0, 1, "x")
+    steps(1, 1, "done")
+    steps.close()
+    assert quiet.getvalue() == ""

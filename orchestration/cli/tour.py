@@ -17,21 +17,68 @@ DEFAULT_OUT = "mdft-tour"
 
 
 class _Steps:
-    """Step lines on stderr: ``[k/n] what runs ...`` and the time the previous step took."""
+    """The tour's steps on stderr.
 
-    def __init__(self, quiet: bool):
+    A line when a step starts (``[1/5] compiling ...``) and one with the time it
+    took when it ends; on a terminal the second line is a clock that ticks every
+    second while the step runs.
+    """
+
+    def __init__(self, quiet: bool, stream=None):
+        self.stream = stream if stream is not None else sys.stderr
         self.quiet = quiet
+        self.live = not quiet and self.stream.isatty()
         self.started = None
+        self._stop = None
+        self._ticker = None
 
     def __call__(self, done: int, total: int, step: str) -> None:
         now = time.perf_counter()
         if self.quiet:
             return
-        if self.started is not None:
-            print(f"      done in {now - self.started:.1f} s", file=sys.stderr, flush=True)
+        self._end_step(now)
         if done < total:
-            print(f"[{done + 1}/{total}] {step} ...", file=sys.stderr, flush=True)
-        self.started = now
+            print(f"[{done + 1}/{total}] {step} ...", file=self.stream, flush=True)
+            self.started = now
+            if self.live:
+                self._start_ticker()
+
+    def _end_step(self, now) -> None:
+        if self.started is None:
+            return
+        self._stop_ticker()
+        took = f"      done in {now - self.started:.1f} s"
+        print(f"\r{took}\033[K" if self.live else took, file=self.stream, flush=True)
+        self.started = None
+
+    def _start_ticker(self) -> None:
+        import threading
+
+        stop = threading.Event()
+        started = self.started
+
+        def tick():
+            while not stop.wait(1.0):
+                self.stream.write(f"\r      {time.perf_counter() - started:.0f} s\033[K")
+                self.stream.flush()
+
+        self._stop = stop
+        self._ticker = threading.Thread(target=tick, daemon=True)
+        self._ticker.start()
+
+    def _stop_ticker(self) -> None:
+        if self._ticker is not None:
+            self._stop.set()
+            self._ticker.join()
+            self._ticker = None
+
+    def close(self) -> None:
+        """Stop the clock of an unfinished step (the run failed or was interrupted)."""
+        self._stop_ticker()
+        if self.live and self.started is not None:
+            self.stream.write("\n")
+            self.stream.flush()
+        self.started = None
 
 
 def next_commands_text() -> str:
@@ -79,11 +126,14 @@ def _tour_command(args) -> int:
     except OSError as exc:
         raise UsageError(f"--out: cannot create the folder {args.out!r} "
                          f"({exc.strerror or exc})") from None
+    steps = _Steps(args.quiet)
     try:
-        result = tour(out, rng=args.seed, quick=args.quick, progress=_Steps(args.quiet))
+        result = tour(out, rng=args.seed, quick=args.quick, progress=steps)
     except OSError as exc:
         where = f" {exc.filename!r}" if exc.filename else ""
         raise UsageError(f"--out: cannot write{where} ({exc.strerror or exc})") from None
+    finally:
+        steps.close()
     if args.json:
         payload = result.to_dict()
         payload["out_dir"] = str(result.out_dir)
