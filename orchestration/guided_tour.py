@@ -622,19 +622,18 @@ def _trajectories_figure(world, runs, gen):
 
     from .plot import plot_rollouts
 
-    fig = Figure(figsize=(3.9 * len(WEIGHTS_W_C), 4.3), layout="constrained")
-    axes = fig.subplots(1, len(WEIGHTS_W_C))
-    for ax, w_c in zip(np.atleast_1d(axes), WEIGHTS_W_C):
-        label = f"({1 - w_c:.1f}, {w_c:.1f})"
-        plot_rollouts(ax, world, {f"WA {label}": runs[f"wa-{w_c}"],
-                                  f"MDFT {label}": runs[f"mdft-{w_c}"]},
+    fig = Figure(figsize=(3.9 * len(WEIGHTS_W_C), 4.5), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(WEIGHTS_W_C)))
+    for ax, w_c in zip(axes, WEIGHTS_W_C):
+        plot_rollouts(ax, world, {"WA": runs[f"wa-{w_c}"], "MDFT": runs[f"mdft-{w_c}"]},
                       n_shown=15, rng=gen, colors=_COLOURS)
-        ax.get_legend().remove()  # one legend below the panel instead of one beside it
-        legend = ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncols=2,
-                           frameon=False)
-        for handle in legend.legend_handles:
-            handle.set_alpha(1.0)
-        ax.set_title(f"weights (w_n, w_c) = {label}", fontsize="medium")
+        ax.get_legend().remove()  # one legend for the figure, below the panels
+        ax.set_title(f"weights (w_n, w_c) = ({1 - w_c:.1f}, {w_c:.1f})", fontsize="medium")
+    handles, labels = axes[0].get_legend_handles_labels()
+    legend = fig.legend(handles, labels, loc="outside lower center", ncols=len(labels),
+                        frameon=False)
+    for handle in legend.legend_handles:
+        handle.set_alpha(1.0)
     return fig
 
 
