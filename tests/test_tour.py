@@ -1,6 +1,7 @@
 """The tour (``orchestration.tour`` and ``mdft tour``): files, report, numbers, determinism, errors."""
 
 import base64
+import sys
 import json
 import re
 from html.parser import HTMLParser
@@ -290,3 +291,31 @@ def test_step_display_ticks_on_a_terminal_and_prints_lines_elsewhere():
     steps(1, 1, "done")
     steps.close()
     assert quiet.getvalue() == ""
+
+
+def test_kernels_reported_uncompiled_with_an_empty_cache(tmp_path):
+    """A fresh numba cache folder (as on a new installation) means compilation is announced."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("from orchestration.guided_tour import kernels_compiled; "
+            "print(kernels_compiled())")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "False"
+
+
+def test_kernels_compiled_cannot_tell_without_an_inspectable_cache(monkeypatch):
+    import types
+
+    import numba
+
+    fake = types.ModuleType("mdft._uncached_for_test")
+    fake.kernel = numba.njit(cache=False)(lambda x: x)  # a dispatcher without a disk cache
+    monkeypatch.setitem(sys.modules, fake.__name__, fake)
+    assert kernels_compiled() is None
