@@ -251,6 +251,17 @@ def _check_progress(progress):
         )
 
 
+def _check_rng(rng) -> np.random.Generator:
+    if isinstance(rng, bool) or (isinstance(rng, (int, np.integer)) and rng < 0):
+        raise ValueError(f"rng must be None, an integer >= 0 or a numpy.random.Generator "
+                         f"(got {rng!r})")
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError):
+        raise TypeError(f"rng must be None, an integer >= 0 or a numpy.random.Generator "
+                        f"(got {rng!r})") from None
+
+
 def _check_out_dir(out_dir) -> Path:
     if not isinstance(out_dir, (str, Path)) or str(out_dir) == "":
         raise TypeError(f"out_dir must be a folder path (str or Path) (got {out_dir!r})")
@@ -322,9 +333,9 @@ def tour(out_dir, *, rng=0, quick=False, progress=None) -> TourResult:
     _check_progress(progress)
     if not isinstance(quick, bool):
         raise TypeError(f"quick must be True or False (got {quick!r})")
+    gen = _check_rng(rng)
     out = _check_out_dir(out_dir)
-    seed = int(rng) if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) else None
-    gen = np.random.default_rng(rng)
+    seed = int(rng) if isinstance(rng, (int, np.integer)) else None
     g_effects, g_demos, g_rollouts, g_figures = gen.spawn(4)
     s = settings(quick)
 

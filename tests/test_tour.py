@@ -211,6 +211,12 @@ def test_bad_arguments_are_refused_by_name(tmp_path):
         orchestration.tour(tmp_path, quick=True, progress=3)
     with pytest.raises(TypeError, match=r"quick must be True or False \(got 'yes'\)"):
         orchestration.tour(tmp_path, quick="yes")
+    with pytest.raises(ValueError, match=r"rng must be None, an integer >= 0 .*got -1"):
+        orchestration.tour(tmp_path, quick=True, rng=-1)
+    with pytest.raises(TypeError, match=r"rng must be None, an integer >= 0 .*got 'abc'"):
+        orchestration.tour(tmp_path, quick=True, rng="abc")
+    with pytest.raises(ValueError, match=r"rng must be .*got True"):
+        orchestration.tour(tmp_path, quick=True, rng=True)
     assert not any(tmp_path.glob("*.png"))  # nothing written before the arguments are checked
 
 
