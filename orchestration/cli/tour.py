@@ -106,7 +106,7 @@ def next_commands_text() -> str:
         arg("--out", metavar="DIR", default=DEFAULT_OUT,
             help="output folder (created if needed; files of the same names are replaced)"),
         arg("--seed", type=non_negative_int, default=0,
-            help="seed of the run; the same seed gives the same numbers"),
+            help="seed of the run; the same seed gives the same numbers (default: 0)"),
         arg("--quick", action="store_true", help="small sizes: a few seconds once compiled"),
         arg("--json", action="store_true",
             help="print the results as JSON instead of the tables (progress stays on stderr)"),
