@@ -17,6 +17,7 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; ma
 h1 { font-size: 1.7em; margin-bottom: 0.2em; }
 h2 { font-size: 1.25em; margin-top: 1.8em; border-bottom: 1px solid #ddd; padding-bottom: 0.2em; }
 p.lead { color: #555; margin-top: 0; }
+div.scroll { overflow-x: auto; }
 table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
 th, td { padding: 0.25em 0.8em; text-align: left; border-bottom: 1px solid #e4e4e4; }
 th { background: #f4f4f4; }
@@ -94,8 +95,8 @@ def _table_html(table) -> str:
             else f"<td>{html.escape(str(c))}</td>" for c in row)
         body.append(f"<tr>{cells}</tr>")
     notes = "".join(f'<p class="note">{html.escape(n)}</p>' for n in table.notes)
-    return (f'<table data-title="{html.escape(table.title)}"><thead><tr>{head}</tr></thead>'
-            f"<tbody>{''.join(body)}</tbody></table>{notes}")
+    return (f'<div class="scroll"><table data-title="{html.escape(table.title)}"><thead><tr>'
+            f"{head}</tr></thead><tbody>{''.join(body)}</tbody></table></div>{notes}")
 
 
 def _figure_html(name: str, path: Path) -> str:
