@@ -15,6 +15,7 @@ from .orchestrators import (
 from .rollout import rollout
 from .agent import Episode, OrchestratorAgent, run_episode
 from .expressiveness import MDFTvsWAInstance, MDFTvsWAResult, mdft_vs_wa, mdft_vs_wa_instance
+from .guided_tour import TourResult, tour
 
 __all__ = [
     "ActionPreferences",
@@ -31,6 +32,8 @@ __all__ = [
     "MDFTvsWAResult",
     "mdft_vs_wa_instance",
     "mdft_vs_wa",
+    "TourResult",
+    "tour",
 ]
 
 from mdft import __version__  # one version for the whole pymdft distribution

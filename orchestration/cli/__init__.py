@@ -5,6 +5,7 @@ Commands::
     mdft simulate    simulate an MDFT model given inline or in a JSON file
     mdft effects     the similarity, attraction and compromise effects: table and figure
     mdft reproduce   the paper's experiments: tables, figures and results files
+    mdft tour        the whole story in about a minute: tables, figures, an HTML report
 
 One module per command group (:mod:`.engine` for ``simulate`` and ``effects``,
 :mod:`.reproduce`), each a thin layer over library functions; :mod:`._core`
@@ -13,6 +14,6 @@ one line on stderr and exit code 2, without a traceback.
 """
 
 from ._core import UsageError, arg, build_parser, main, subcommand, version
-from . import engine, reproduce  # noqa: F401  (registers the commands)
+from . import engine, reproduce, tour  # noqa: F401  (registers the commands)
 
 __all__ = ["UsageError", "arg", "build_parser", "main", "subcommand", "version"]
