@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 
 from ._core import UsageError, arg, non_negative_int, subcommand
@@ -28,9 +29,9 @@ class _Steps:
         self.stream = stream if stream is not None else sys.stderr
         self.quiet = quiet
         self.live = not quiet and self.stream.isatty()
-        self.started = None
-        self._stop = None
-        self._ticker = None
+        self.started: float | None = None
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
 
     def __call__(self, done: int, total: int, step: str) -> None:
         now = time.perf_counter()
@@ -52,10 +53,9 @@ class _Steps:
         self.started = None
 
     def _start_ticker(self) -> None:
-        import threading
-
         stop = threading.Event()
         started = self.started
+        assert started is not None  # a step has begun
 
         def tick():
             while not stop.wait(1.0):
