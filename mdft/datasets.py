@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fit import ChoiceData
+from .choice_data import ChoiceData
 
 __all__ = ["SushiData", "ThesisProblem", "load_sushi", "load_thesis_set"]
 
