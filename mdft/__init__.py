@@ -30,6 +30,7 @@ from .effects import (
     default_stopping,
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
+from .fit_many import FitManyResult, fit_many
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
 
 __all__ = [
@@ -47,6 +48,8 @@ __all__ = [
     "FitConvergenceWarning",
     "FitResult",
     "fit",
+    "FitManyResult",
+    "fit_many",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",

@@ -236,11 +236,16 @@ def fit(
     p_hat = layout.unpack(u_hat)
     on_bound = tuple(dict.fromkeys(layout.block_of(i) for i in out.on_bound))
     problems = list(out.problems)
+    lik.negative(p_hat)
+    if lik.last_warnings:
+        # the exact engine cannot vouch for its answer at the optimum
+        problems.append("the likelihood engine warned at the optimum: "
+                        + "; ".join(dict.fromkeys(lik.last_warnings)))
     if on_bound:
         problems.append(
             f"{', '.join(on_bound)} on a bound of its range (widen bounds= if the range allows)"
         )
-    converged = out.converged
+    converged = out.converged and not lik.last_warnings
     message = best.message if not problems else "; ".join(problems)
     if not converged:
         warnings.warn(

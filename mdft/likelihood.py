@@ -188,6 +188,8 @@ class Likelihood:
         else:
             self.constant = data.log_multinomial_coefficient()
         self.n_evaluations = 0
+        #: Warnings of the exact engine at the latest evaluation (reported at the optimum).
+        self.last_warnings = []
 
     @property
     def label(self) -> str:
@@ -206,7 +208,12 @@ class Likelihood:
         theta, max_steps = self._threshold(p)
         if self.engine == "threshold_exact":
             fn = _threshold_exact_function()
-            return fn(quiet_model(Ms, p), theta, max_steps=max_steps, **self.threshold_options)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", RuntimeWarning)
+                res = fn(quiet_model(Ms, p), theta, max_steps=max_steps,
+                         **self.threshold_options)
+            self.last_warnings += [str(w.message) for w in caught]
+            return res
         import mdft
 
         return mdft.simulate(quiet_model(Ms, p), self.n_samples,
@@ -255,6 +262,7 @@ class Likelihood:
     def negative(self, p):
         """Negative log-likelihood (without the constant); ``INFEASIBLE`` where undefined."""
         self.n_evaluations += 1
+        self.last_warnings = []
         total = 0.0
         try:
             if self.use_rt:
