@@ -130,9 +130,10 @@ def fit(
     Warns
     -----
     FitConvergenceWarning
-        Whenever ``converged`` is False: the best start's optimiser did not converge, the
-        starts disagree (only one reached the best log-likelihood), the global screen found
-        a better point than every local optimum, or a fitted parameter lies on a bound.
+        Whenever ``converged`` is False: no start that reached the best log-likelihood met
+        its optimiser's criterion, the starts disagree (only one reached the best
+        log-likelihood, even after ``n_confirm`` further starts), a fitted parameter lies on
+        a bound, or the exact threshold engine warned at the optimum.
 
     Notes
     -----

@@ -69,9 +69,10 @@ class FitResult:
     aic, bic : float
         ``2 k - 2 log L`` and ``k log(N) - 2 log L``.
     converged : bool
-        True only when the best start's optimiser converged, at least two starts reached the
-        best log-likelihood (when ``n_starts > 1``), no point of the global screen was
-        better, and no fitted parameter lies on a bound of its range.
+        True only when a start that reached the best log-likelihood met its optimiser's
+        criterion, at least two starts reached it (when ``n_starts > 1``), no fitted
+        parameter lies on a bound of its range and the likelihood engine did not warn at
+        the optimum.
     n_iter : int
         Iterations of the best start.
     message : str
@@ -175,6 +176,39 @@ class FitResult:
         n = self.params["M"].shape[0]
         subs = [_as_subset(f"subsets[{k}]", s, n) for k, s in enumerate(subsets)]
         return tuple(self._likelihood.predict(self.params, subs))
+
+    def log_likelihood_at(self, params) -> float:
+        """The log-likelihood of the fitted data at other parameter values.
+
+        Same likelihood as :attr:`log_likelihood` (same engine, same response-time
+        treatment, the same simulation seed), so the two are comparable: e.g. at the true
+        parameters of synthetic data, which the maximum must not fall below.
+
+        Parameters
+        ----------
+        params : dict
+            Values of any of ``w``, ``phi1``, ``phi2``, ``beta``, ``sigma2``, ``theta``, ``M``;
+            the others are taken from :attr:`params`.
+
+        Examples
+        --------
+        >>> import mdft
+        >>> data = mdft.ChoiceData([[0, 1]], [[60, 40]])
+        >>> res = mdft.fit(data, [[1.0, 3.0], [3.0, 1.0]], stopping=20, params=["w"],
+        ...                fixed=dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0), rng=0)
+        >>> bool(res.log_likelihood_at({"w": [0.5, 0.5]}) < res.log_likelihood)
+        True
+        """
+        if not isinstance(params, dict):
+            raise TypeError(f"params must be a dict of parameter values (got {params!r})")
+        bad = [k for k in params if k not in self.params]
+        if bad:
+            raise ValueError(f"params has unknown parameter name(s) {bad}; allowed: "
+                             f"{sorted(self.params)}")
+        p = dict(self.params)
+        for k, v in params.items():
+            p[k] = np.asarray(v, dtype=np.float64) if k in ("w", "M") else float(v)
+        return float(self._likelihood.log_likelihood(p))
 
     def summary(self) -> str:
         """A small text table: each fitted value with its standard error, then fit statistics.

@@ -6,7 +6,9 @@
 2. local optimisations (L-BFGS-B for smooth objectives, bounded Nelder-Mead otherwise) run
    from the given first start and from the best, mutually distant screen points;
 3. the best optimum must be reached by at least two starts (within ``agree_tol``); if it is
-   not, up to ``n_confirm`` further starts from the screen try to reach it (or better);
+   not, up to ``n_confirm`` further starts from the next best distant screen points try to
+   reach it (or better). The best screen point is always a start, so no screened point is
+   better than the optimum returned;
 4. an optimum on a face of the cube is reported.
 
 The outcome says whether the optimum is confirmed (:attr:`MultiStartOutcome.converged`);
@@ -162,8 +164,6 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
             f"the starts disagree: only one of {len(runs)} reached the best log-likelihood "
             f"(within {agree_tol:g})"
         )
-    if screen_best < best.fun - agree_tol:
-        problems.append("a point of the global screen is better than every local optimum")
     converged = not problems and not on_bound
     return MultiStartOutcome(best=best, runs=tuple(runs), n_agree=int(n_agree),
                              screen_best=screen_best, n_screen=int(values.size),
