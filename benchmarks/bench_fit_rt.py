@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_fit_rt.py                         # 8 random binary models
+    python benchmarks/bench_fit_rt.py                         # 6 random binary models
     python benchmarks/bench_fit_rt.py --models 4 --workers 2 --checkpoint /tmp/rt-fits
 
 For each random true model (2 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
@@ -60,10 +60,10 @@ def errors(res, truth):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", type=int, default=8)
+    ap.add_argument("--models", type=int, default=6)
     ap.add_argument("--trials", type=int, default=400)
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--starts", type=int, default=3)
+    ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--checkpoint", default=None)
     args = ap.parse_args(argv)
     models = [random_model(1000 + i, args.trials) for i in range(args.models)]
@@ -74,7 +74,7 @@ def main(argv=None):
                 data=data, M=M, response_times=rt)
     t0 = time.perf_counter()
     many = mdft.fit_many(problems, rng=0, stopping=mdft.Threshold(10.0, MAX_STEPS),
-                         params=PARAMS, fixed=KNOWN, n_starts=args.starts, tol=1e-8,
+                         params=PARAMS, fixed=KNOWN, n_starts=args.starts, tol=1e-7,
                          bounds=dict(sigma2=(0.05, 10.0), theta=(1.0, 40.0)),
                          executor="serial" if args.workers == 1 else None,
                          n_workers=args.workers, checkpoint=args.checkpoint)

@@ -1,0 +1,128 @@
+"""Fits that find the maximum of the likelihood or say they may not have; the result's
+repr, summary and to_dict."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import mdft
+from mdft.optimise import multistart
+
+SUBSETS = [[0, 1], [0, 1, 2], [0, 1, 3], [1, 2, 3]]
+PARAMS = ["w", "phi1", "phi2", "sigma2"]
+
+
+def random_problem(seed):
+    rng = np.random.default_rng(seed)
+    M = rng.uniform(0.0, 2.5, size=(4, 2))
+    w0 = rng.uniform(0.2, 0.8)
+    truth = dict(w=np.array([w0, 1 - w0]), phi1=rng.uniform(0.005, 0.1),
+                 phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
+                 sigma2=rng.uniform(0.5, 4.0))
+    T = int(rng.integers(10, 60))
+    counts = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        for s in SUBSETS:
+            m = mdft.MDFTModel(M[s], truth["w"], **{k: truth[k] for k in truth if k != "w"})
+            counts.append(rng.multinomial(int(rng.integers(15, 40)),
+                                          mdft.choice_probabilities(m, T)))
+    return mdft.ChoiceData(SUBSETS, counts), M, T, truth
+
+
+def test_fit_reaches_the_likelihood_of_the_truth_or_does_not_claim_convergence():
+    """The maximum is never below the likelihood at the true parameters: a fit that stops
+    below it has missed the optimum and must say so (the benchmark
+    bench_fit_optimum.py measures the share on 100 problems)."""
+    reached, claimed_wrongly = 0, 0
+    n = 4
+    for seed in range(n):
+        data, M, T, truth = random_problem(seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+            res = mdft.fit(data, M, stopping=T, params=PARAMS, fixed=dict(beta=truth["beta"]),
+                           n_starts=3, rng=seed)
+        ok = res.log_likelihood >= res.log_likelihood_at({k: truth[k] for k in PARAMS}) - 0.01
+        reached += ok
+        claimed_wrongly += (not ok) and res.converged
+    assert claimed_wrongly == 0
+    assert reached >= n - 1
+
+
+def test_optimum_on_a_bound_warns_and_is_not_converged():
+    data, M, T, truth = random_problem(3)
+    fixed = {k: truth[k] for k in ("w", "phi1", "beta", "sigma2")}
+    with pytest.warns(mdft.FitConvergenceWarning, match=r"phi2 on a bound of its range"):
+        res = mdft.fit(data, M, stopping=T, params=["phi2"], fixed=fixed,
+                       bounds=dict(phi2=(0.3, 0.5)), n_starts=3, rng=0)
+    assert res.on_bound == ("phi2",) and not res.converged
+    assert "on a bound" in res.message and not np.isfinite(res.standard_errors["phi2"])
+
+
+def test_starts_that_disagree_are_reported():
+    # a narrow deep well at 0.9 that only the first start finds, a broad shallow one at 0.3
+    def f(u):
+        x = float(u[0])
+        return -2.0 * np.exp(-((x - 0.9) / 0.01) ** 2) - np.exp(-((x - 0.3) / 0.2) ** 2)
+
+    rng = np.random.default_rng(0)
+    out = multistart(f, np.array([0.9]), n_starts=3, n_screen=8, rng=rng, smooth=True,
+                     max_iter=200, tol=1e-12, fatol=1e-12, agree_tol=1e-3, n_confirm=2)
+    assert out.best.x[0] == pytest.approx(0.9, abs=1e-3)
+    assert out.n_agree == 1 and not out.converged and len(out.runs) == 5  # 3 + 2 confirmations
+    assert any("the starts disagree" in p for p in out.problems)
+    # the same search from a start in the broad well: every start agrees (on it)
+    out2 = multistart(lambda u: -np.exp(-((float(u[0]) - 0.3) / 0.2) ** 2), np.array([0.5]),
+                      n_starts=3, n_screen=8, rng=rng, smooth=True, max_iter=200, tol=1e-12,
+                      fatol=1e-12, agree_tol=1e-3)
+    assert out2.converged and out2.n_agree == 3 and out2.best.x[0] == pytest.approx(0.3, abs=1e-4)
+
+
+def test_fit_warns_when_only_one_start_reaches_the_best(monkeypatch):
+    data, M, T, truth = random_problem(1)
+    fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
+    with pytest.warns(mdft.FitConvergenceWarning, match="the starts disagree"):
+        res = mdft.fit(data, M, stopping=T, params=["w"], fixed=fixed, n_starts=2,
+                       n_confirm=0, agree_tol=0.0, max_iter=2, rng=0)
+    assert not res.converged
+
+
+def test_result_repr_summary_and_to_dict():
+    data, M, T, truth = random_problem(2)
+    fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
+    del fixed["phi2"]
+    res = mdft.fit(data, M, stopping=T, params=["w", "phi2"], fixed=fixed, n_starts=2, rng=0)
+    text = repr(res)
+    assert text.startswith("FitResult(w=[") and "phi2=" in text and len(text) < 200
+    lines = res.summary().splitlines()
+    assert lines[0].startswith("MDFT fit: 2 parameters, ")
+    assert lines[2].split()[0] == "w[0]" and lines[4].split()[0] == "phi2"
+    assert float(lines[4].split()[1]) == pytest.approx(res.params["phi2"], rel=1e-3)
+    d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert d["params"]["w"] == pytest.approx(res.params["w"].tolist())
+    assert d["log_likelihood"] == res.log_likelihood and d["stopping"] == {"n_steps": T}
+    assert d["params"]["theta"] is None and d["converged"] == res.converged
+
+
+def test_log_likelihood_at_bad_input():
+    res = mdft.fit(mdft.ChoiceData([[0, 1]], [[6, 4]]), [[1.0, 3.0], [3.0, 1.0]], stopping=10,
+                   fixed=dict(phi1=0.02, phi2=0.05, beta=12.0, sigma2=1.0), n_starts=1, rng=0)
+    with pytest.raises(TypeError, match="params must be a dict"):
+        res.log_likelihood_at([0.5, 0.5])
+    with pytest.raises(ValueError, match=r"params has unknown parameter name\(s\) \['tau'\]"):
+        res.log_likelihood_at({"tau": 1.0})
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(n_confirm=-1), "n_confirm must be an integer >= 0"),
+        (dict(agree_tol=-0.1), "agree_tol must be >= 0"),
+    ],
+)
+def test_optimiser_settings_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mdft.fit(mdft.ChoiceData([[0, 1]], [[6, 4]]), [[1.0, 3.0], [3.0, 1.0]], stopping=10,
+                 fixed=dict(phi1=0.02, phi2=0.05, beta=12.0, sigma2=1.0), rng=0, **kwargs)
