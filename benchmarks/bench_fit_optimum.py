@@ -2,8 +2,8 @@
 
 Usage::
 
-    python benchmarks/bench_fit_optimum.py                 # 100 problems
-    python benchmarks/bench_fit_optimum.py --problems 20 --workers 2
+    python benchmarks/bench_fit_optimum.py                 # 40 problems
+    python benchmarks/bench_fit_optimum.py --problems 100 --workers 2 --checkpoint /tmp/opt
 
 Each problem draws 4 options on 2 attributes (uniform on [0, 2.5]), a true model (w[0] in
 [0.2, 0.8], phi1 in [0.005, 0.1], phi2 in [0.01, 0.2], beta in [1, 15], sigma2 in [0.5, 4]),
@@ -58,7 +58,8 @@ def random_problem(seed):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--problems", type=int, default=100)
+    ap.add_argument("--problems", type=int, default=40)
+    ap.add_argument("--checkpoint", default=None, help="folder: a re-run resumes")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
@@ -66,7 +67,9 @@ def main(argv=None):
     t0 = time.perf_counter()
     many = mdft.fit_many([p for p, _ in pairs], rng=args.seed,
                          executor="serial" if args.workers == 1 else None,
-                         n_workers=args.workers)
+                         n_workers=args.workers, checkpoint=args.checkpoint,
+                         progress=lambda i, n, key, res: print(f"{i}/{n}", end="\r",
+                                                               file=sys.stderr, flush=True))
     elapsed = time.perf_counter() - t0
     gaps, conv = [], []
     for (_, truth), res in zip(pairs, many.results):
