@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_fit_rt.py                         # 6 random binary models
+    python benchmarks/bench_fit_rt.py                         # 4 random binary models
     python benchmarks/bench_fit_rt.py --models 4 --workers 2 --checkpoint /tmp/rt-fits
 
 For each random true model (2 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
@@ -31,7 +31,7 @@ import mdft  # noqa: E402
 
 KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
 PARAMS = ["w", "sigma2", "theta"]
-MAX_STEPS = 1000
+MAX_STEPS = 500
 
 
 def random_model(seed, n_trials):
@@ -60,7 +60,7 @@ def errors(res, truth):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", type=int, default=6)
+    ap.add_argument("--models", type=int, default=4)
     ap.add_argument("--trials", type=int, default=400)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)
@@ -74,8 +74,8 @@ def main(argv=None):
                 data=data, M=M, response_times=rt)
     t0 = time.perf_counter()
     many = mdft.fit_many(problems, rng=0, stopping=mdft.Threshold(10.0, MAX_STEPS),
-                         params=PARAMS, fixed=KNOWN, n_starts=args.starts, tol=1e-7,
-                         bounds=dict(sigma2=(0.05, 10.0), theta=(1.0, 40.0)),
+                         params=PARAMS, fixed=KNOWN, n_starts=args.starts, n_screen_per_start=4,
+                         tol=1e-6, bounds=dict(sigma2=(0.2, 8.0), theta=(2.0, 30.0)),
                          executor="serial" if args.workers == 1 else None,
                          n_workers=args.workers, checkpoint=args.checkpoint)
     elapsed = time.perf_counter() - t0

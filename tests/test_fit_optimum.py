@@ -1,8 +1,10 @@
 """Fits that find the maximum of the likelihood or say they may not have; the result's
 repr, summary and to_dict."""
 
+import importlib.util
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,26 +12,23 @@ import pytest
 import mdft
 from mdft.optimise import multistart
 
-SUBSETS = [[0, 1], [0, 1, 2], [0, 1, 3], [1, 2, 3]]
-PARAMS = ["w", "phi1", "phi2", "sigma2"]
+
+def _load_benchmark():
+    """The benchmark's generator of random problems, so that test and benchmark draw alike."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fit_optimum.py"
+    spec = importlib.util.spec_from_file_location("bench_fit_optimum", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+BENCH = _load_benchmark()
+PARAMS = BENCH.PARAMS
 
 
 def random_problem(seed):
-    rng = np.random.default_rng(seed)
-    M = rng.uniform(0.0, 2.5, size=(4, 2))
-    w0 = rng.uniform(0.2, 0.8)
-    truth = dict(w=np.array([w0, 1 - w0]), phi1=rng.uniform(0.005, 0.1),
-                 phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
-                 sigma2=rng.uniform(0.5, 4.0))
-    T = int(rng.integers(10, 60))
-    counts = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        for s in SUBSETS:
-            m = mdft.MDFTModel(M[s], truth["w"], **{k: truth[k] for k in truth if k != "w"})
-            counts.append(rng.multinomial(int(rng.integers(15, 40)),
-                                          mdft.choice_probabilities(m, T)))
-    return mdft.ChoiceData(SUBSETS, counts), M, T, truth
+    problem, truth = BENCH.random_problem(seed)
+    return problem["data"], problem["M"], problem["stopping"], truth
 
 
 def test_fit_reaches_the_likelihood_of_the_truth_or_does_not_claim_convergence():
