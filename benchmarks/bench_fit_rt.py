@@ -2,13 +2,13 @@
 
 Usage::
 
-    python benchmarks/bench_fit_rt.py                         # 4 random binary models
+    python benchmarks/bench_fit_rt.py                         # 4 random models
     python benchmarks/bench_fit_rt.py --models 4 --workers 2 --checkpoint /tmp/rt-fits
 
-For each random true model (2 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
+For each random true model (3 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
 sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta = 12 known),
-``--trials`` trials are simulated with threshold stopping, and ``w``, ``sigma2`` and ``theta``
-are fitted twice from the same trials: with the joint likelihood of choice and decision step
+``--trials`` trials of each of the three pairs of options are simulated with threshold
+stopping, and ``w``, ``sigma2`` and ``theta`` are fitted twice from the same trials: with the joint likelihood of choice and decision step
 (the exact engine's ``rt_pmf``) and from the choices alone. Reported per model and parameter:
 the absolute error of ``w[0]`` and the relative errors of ``sigma2`` and ``theta``, and their
 medians. The fits run through ``mdft.fit_many``; with ``--checkpoint`` a re-run resumes.
@@ -34,21 +34,28 @@ PARAMS = ["w", "sigma2", "theta"]
 MAX_STEPS = 500
 
 
+PAIRS = [[0, 1], [0, 2], [1, 2]]
+
+
 def random_model(seed, n_trials):
-    """(ChoiceData with decision steps, M, truth) of one random binary model."""
+    """(ChoiceData with decision steps, M, truth): one random model, its three pairs."""
     rng = np.random.default_rng(seed)
-    M = rng.uniform(0.0, 3.0, size=(2, 2))
+    M = rng.uniform(0.0, 3.0, size=(3, 2))
     w0 = rng.uniform(0.3, 0.7)
     truth = dict(w=np.array([w0, 1 - w0]), sigma2=rng.uniform(0.5, 3.0),
                  theta=rng.uniform(5.0, 15.0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = mdft.MDFTModel(M, truth["w"], sigma2=truth["sigma2"], **KNOWN)
-    sim = mdft.simulate(model, n_trials, stopping=mdft.Threshold(truth["theta"], MAX_STEPS),
-                        rng=rng)
-    ok = sim.choices >= 0
-    data = mdft.ChoiceData.from_trials([[0, 1]] * int(ok.sum()), sim.choices[ok],
-                                       response_times=sim.decision_steps[ok])
+    subsets, choices, steps = [], [], []
+    for pair in PAIRS:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+            model = mdft.MDFTModel(M[pair], truth["w"], sigma2=truth["sigma2"], **KNOWN)
+        sim = mdft.simulate(model, n_trials, stopping=mdft.Threshold(truth["theta"], MAX_STEPS),
+                            rng=rng)
+        ok = sim.choices >= 0
+        subsets += [pair] * int(ok.sum())
+        choices += [pair[c] for c in sim.choices[ok]]
+        steps += sim.decision_steps[ok].tolist()
+    data = mdft.ChoiceData.from_trials(subsets, choices, response_times=steps)
     return data, M, truth
 
 
@@ -61,7 +68,7 @@ def errors(res, truth):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", type=int, default=4)
-    ap.add_argument("--trials", type=int, default=400)
+    ap.add_argument("--trials", type=int, default=200, help="trials per pair")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--checkpoint", default=None)
@@ -79,7 +86,7 @@ def main(argv=None):
                          executor="serial" if args.workers == 1 else None,
                          n_workers=args.workers, checkpoint=args.checkpoint)
     elapsed = time.perf_counter() - t0
-    print(f"{args.models} random binary models, {args.trials} trials each; fitted {PARAMS}; "
+    print(f"{args.models} random 3-option models, {args.trials} trials per pair; fitted {PARAMS}; "
           f"{elapsed / len(problems):.0f} s per fit")
     print(f"{'model':>5s} {'w0':>6s} {'sigma2':>7s} {'theta':>6s} | with response times: "
           f"{'|dw0|':>6s} {'sigma2':>7s} {'theta':>6s} | choices only: {'|dw0|':>6s} "

@@ -240,7 +240,9 @@ def _problem_list(problems):
 def _resolve_executor(executor, n_workers):
     """``(executor, owned)``: the executor to submit to and whether fit_many must shut it down."""
     if executor is None:
-        n = n_workers or max(1, min(len(os.sched_getaffinity(0)), 8))
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+        n = n_workers or max(1, min(cores, 8))
         ctx = multiprocessing.get_context(
             "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn")
         pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
