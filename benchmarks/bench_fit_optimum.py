@@ -83,7 +83,8 @@ def main(argv=None):
     print(f"fit log-likelihood >= truth's - 0.01: {reached.mean():.1%}")
     print(f"converged=True: {conv.mean():.1%}")
     print(f"missed the optimum but claimed convergence: {int(np.sum(~reached & conv))}")
-    print(f"largest shortfall: {-gaps.min():.3f}; on a bound: "
+    print(f"smallest gain of the fit over the truth's log-likelihood: {gaps.min():.3f}; "
+          f"on a bound: "
           f"{sum(bool(r.on_bound) for r in many.results)}")
 
 
