@@ -36,7 +36,7 @@ def test_fit_reaches_the_likelihood_of_the_truth_or_does_not_claim_convergence()
     below it has missed the optimum and must say so (the benchmark
     bench_fit_optimum.py measures the share on 100 problems)."""
     reached, claimed_wrongly = 0, 0
-    n = 4
+    n = 3
     for seed in range(n):
         data, M, T, truth = random_problem(seed)
         with warnings.catch_warnings():
