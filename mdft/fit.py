@@ -248,6 +248,10 @@ def fit(
         )
     converged = out.converged and not lik.last_warnings
     message = best.message if not problems else "; ".join(problems)
+    if lik.n_failed:
+        # reported, not fatal: corners of the box where preferences overflow are common
+        message += (f"; {lik.n_failed} of {lik.n_evaluations} likelihood evaluations failed "
+                    f"and counted as impossible (first: {lik.first_failure})")
     if not converged:
         warnings.warn(
             f"the fit may not have found the maximum: {message}; raise n_starts or max_iter, "

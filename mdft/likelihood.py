@@ -188,6 +188,9 @@ class Likelihood:
         else:
             self.constant = data.log_multinomial_coefficient()
         self.n_evaluations = 0
+        #: Evaluations where the model could not be evaluated (treated as impossible).
+        self.n_failed = 0
+        self.first_failure = ""
         #: Warnings of the exact engine at the latest evaluation (reported at the optimum).
         self.last_warnings = []
 
@@ -271,9 +274,15 @@ class Likelihood:
             else:
                 for q, c in zip(self.predict(p), self.counts):
                     if not np.all(np.isfinite(q)):
+                        self.n_failed += 1
+                        self.first_failure = self.first_failure or (
+                            "the predicted probabilities are not finite (preferences overflow)")
                         return INFEASIBLE
                     total -= float(c @ np.log(np.maximum(q, PROBABILITY_FLOOR)))
-        except (ValueError, FloatingPointError):
+        except (ValueError, FloatingPointError) as exc:
+            # e.g. preferences that overflow, or an engine that cannot vouch for its answer
+            self.n_failed += 1
+            self.first_failure = self.first_failure or f"{type(exc).__name__}: {exc}"
             return INFEASIBLE
         return total if np.isfinite(total) else INFEASIBLE
 

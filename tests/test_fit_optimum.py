@@ -125,3 +125,16 @@ def test_optimiser_settings_bad_input(kwargs, match):
     with pytest.raises(ValueError, match=match):
         mdft.fit(mdft.ChoiceData([[0, 1]], [[6, 4]]), [[1.0, 3.0], [3.0, 1.0]], stopping=10,
                  fixed=dict(phi1=0.02, phi2=0.05, beta=12.0, sigma2=1.0), rng=0, **kwargs)
+
+
+def test_failed_evaluations_are_reported():
+    # phi2 up to 3 over 1000 steps: part of the box overflows and cannot be evaluated
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        res = mdft.fit(mdft.ChoiceData([[0, 1]], [[60, 40]]), [[1.0, 3.0], [3.0, 1.0]],
+                       stopping=1000, params=["w", "phi2"],
+                       fixed=dict(phi1=0.0, beta=1.0, sigma2=1.0), bounds=dict(phi2=(0.0, 3.0)),
+                       rng=0)
+    assert "likelihood evaluations failed and counted as impossible" in res.message
+    assert "preferences overflow" in res.message
+    assert res.params["phi2"] < 2.0  # the optimum lies where the model can be evaluated
