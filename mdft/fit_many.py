@@ -360,7 +360,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         bar = tqdm(total=n, initial=n_resumed, desc="fits", unit="fit")
     n_done = n_resumed
 
-    pool, owned = _resolve_executor(executor, n_workers) if todo else (None, False)
+    pool, owned = _resolve_executor(executor, n_workers) if todo else (_Serial(), True)
     try:
         futures = {pool.submit(_fit_one, kwargs_list[i], seeds[i]): i for i in todo}
         for fut in cf.as_completed(futures):
@@ -390,7 +390,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
     finally:
         if bar is not None:
             bar.close()
-        if owned and pool is not None:
+        if owned:
             pool.shutdown(wait=True, cancel_futures=True)
     for r in results:
         if r is not None and not isinstance(r, FitResult):  # pragma: no cover - defensive

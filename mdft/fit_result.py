@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -144,7 +145,7 @@ class FitResult:
     likelihood: str = "choices"
     rt_bins: np.ndarray | None = field(default=None, repr=False)
     n_evaluations: int = 0
-    _likelihood: object = field(repr=False, default=None)
+    _likelihood: Any = field(repr=False, default=None)
 
     def __repr__(self) -> str:
         est = ", ".join(f"{k}={_short(self.params[k])}" for k in self.fitted)
