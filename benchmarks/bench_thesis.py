@@ -7,6 +7,11 @@ Usage::
     python benchmarks/bench_thesis.py --with-M           # also fit M (multi-subset sets)
     python benchmarks/bench_thesis.py --threshold        # also the threshold (pref_based) sets
     python benchmarks/bench_thesis.py --data PATH        # another copy of the data sets
+    python benchmarks/bench_thesis.py --workers 2 --checkpoint /tmp/thesis  # resumable
+
+The 500 problems of the fixed-time sets (and the threshold sets) are fitted through
+``mdft.fit_many``: ``--workers`` local processes, and with ``--checkpoint`` every finished fit
+is saved as it completes, so an interrupted run resumes where it stopped.
 
 For every problem of a set the attention weights ``w`` are estimated by maximum likelihood
 with the other parameters at their true values (the thesis's set-up for learning ``w``);
@@ -75,24 +80,30 @@ def true_predictions(problem):
     return out
 
 
-def run_set(path, n_problems, params, *, rng_seed=0, n_starts=3, threshold=False):
+def run_set(path, n_problems, params, *, rng_seed=0, n_starts=3, threshold=False,
+            workers=1, checkpoint=None):
+    """Fit every problem of a set with ``mdft.fit_many`` (resumable with ``checkpoint``);
+    the time per problem is the wall time over the problems fitted in this run."""
     problems = load_thesis_set(path)[:n_problems]
-    rows = []
     rng = np.random.default_rng(rng_seed)
+    fits = []
     for p in problems:
         fixed = {k: v for k, v in p.true_params.items() if k not in params}
         M_start = np.array(p.M)
         if "M" in params:
             M_start[1:] += rng.normal(0.0, 0.5, size=M_start[1:].shape)
-        kw = {}
-        if threshold:
-            kw = dict(method="simulation", n_samples=4000)
-        t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
-            res = mdft.fit(p.data, M_start, stopping=p.stopping, params=params, fixed=fixed,
-                           n_starts=n_starts, rng=rng_seed, **kw)
-        elapsed = time.perf_counter() - t0
+        kw = dict(method="simulation", n_samples=4000) if threshold else {}
+        fits.append(dict(data=p.data, M=M_start, stopping=p.stopping, fixed=fixed, **kw))
+    folder = None
+    if checkpoint is not None:
+        folder = Path(checkpoint) / f"{Path(path).parent.name}-{Path(path).stem}-{'+'.join(params)}"
+    t0 = time.perf_counter()
+    many = mdft.fit_many(fits, params=params, n_starts=n_starts, rng=rng_seed,
+                         executor="serial" if workers == 1 else None, n_workers=workers,
+                         checkpoint=folder)
+    elapsed = (time.perf_counter() - t0) / max(len(problems) - many.n_resumed, 1)
+    rows = []
+    for p, fit_args, res in zip(problems, fits, many.results):
         mse, mse_thesis = share_errors(res.predicted, res.observed)
         true_mse, true_thesis = share_errors(true_predictions(p), p.data.shares)
         row = dict(mse=mse, mse_thesis=mse_thesis, true_mse=true_mse, true_thesis=true_thesis,
@@ -100,7 +111,7 @@ def run_set(path, n_problems, params, *, rng_seed=0, n_starts=3, threshold=False
                    converged=res.converged)
         if "M" in params:
             row["M_rmse"] = float(np.sqrt(np.mean((res.params["M"] - p.M) ** 2)))
-            row["M_rmse_start"] = float(np.sqrt(np.mean((M_start - p.M) ** 2)))
+            row["M_rmse_start"] = float(np.sqrt(np.mean((fit_args["M"] - p.M) ** 2)))
         rows.append(row)
     return rows
 
@@ -189,6 +200,10 @@ def main(argv=None):
     ap.add_argument("--no-sushi", action="store_true")
     ap.add_argument("--no-thesis", action="store_true", help="only the SUSHI part")
     ap.add_argument("--no-fixed-time", action="store_true", help="skip the time_based sets")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="processes for mdft.fit_many (1: in this process)")
+    ap.add_argument("--checkpoint", default=None,
+                    help="folder for resumable results: a re-run skips finished fits")
     ap.add_argument("--data", default=None,
                     help="folder holding time_based/ and pref_based/ (default: the bundled sets)")
     args = ap.parse_args(argv)
@@ -213,18 +228,21 @@ def thesis(folder, n, args):
           f"{'floor':>10s} {'|dw|':>7s} {'max':>6s} {'<=.05':>6s} {'s/prob':>7s} {'conv':>5s}")
     chosen = [name for name in THESIS_SETS if not args.only or any(o in name for o in args.only)]
     for name in [] if args.no_fixed_time else chosen:
-        rows = run_set(folder / "time_based" / name, n, ["w"])
+        rows = run_set(folder / "time_based" / name, n, ["w"], workers=args.workers,
+                       checkpoint=args.checkpoint)
         print(summarise("time_based/" + name, ["w"], rows), flush=True)
     if args.with_M:
         for params in (["M"], ["w", "M"]):
             for name in M_SETS:
                 rows = run_set(folder / "time_based" / name, min(n, 3 if args.quick else n),
-                               params, n_starts=1)
+                               params, n_starts=1, workers=args.workers,
+                               checkpoint=args.checkpoint)
                 print(summarise("time_based/" + name, params, rows), flush=True)
     if args.threshold:
         for name in chosen:
             rows = run_set(folder / "pref_based" / name, min(n, 3 if args.quick else n), ["w"],
-                           n_starts=2, threshold=True)
+                           n_starts=2, threshold=True, workers=args.workers,
+                           checkpoint=args.checkpoint)
             print(summarise("pref_based/" + name, ["w"], rows), flush=True)
 
 

@@ -32,6 +32,7 @@ from .effects import (
     default_stopping,
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
+from .fit_many import FitManyResult, fit_many
 from .threshold_exact import ThresholdProbabilities, threshold_probabilities
 from .warmup import WarmupReport, warmup
 
@@ -50,6 +51,8 @@ __all__ = [
     "FitConvergenceWarning",
     "FitResult",
     "fit",
+    "FitManyResult",
+    "fit_many",
     "MDFTModel",
     "UnstableFeedbackWarning",
     "contrast_matrix",

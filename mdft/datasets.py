@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validation import MAX_SAMPLES, as_count
-from .fit import ChoiceData
+from .choice_data import ChoiceData
 
 __all__ = ["SushiData", "ThesisProblem", "load_sushi", "load_thesis_set", "thesis_sets"]
 

@@ -545,8 +545,11 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
     -----
     Equivalent in distribution to ``simulate(MDFTModel(M, w, ...), 1,
     stopping=FixedTime(n_steps))`` for each decision, without building the
-    model. The spectral radius of ``S`` is not checked (see
-    ``docs/simulation.md``).
+    model. Like :func:`simulate`, it refuses a deliberation over which the
+    preferences would overflow (spectral radius ``rho(S) > 1`` with
+    ``n_steps * log(rho(S)) > 690``); the check computes ``rho(S)`` only for
+    batches whose Gershgorin bound ``|1 - phi2| + phi2 (n_options - 1)``
+    allows such growth.
 
     Examples
     --------
@@ -593,6 +596,7 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
             f"M and beta={beta:g} give distances between options too large for floating point "
             f"(M spans {spread:.3g}); rescale M or lower beta"
         )
+    _check_batch_growth(batch, phi1, phi2, beta, n_steps)
     generator = np.random.default_rng(rng)
     n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
     n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))
@@ -701,6 +705,27 @@ def _check_growth(spectral_radius: float, n_steps: int) -> None:
             f"(about 1e{n_steps * math.log10(spectral_radius):.0f}); lower n_steps or phi2, "
             "or raise phi1"
         )
+
+
+def _check_batch_growth(batch, phi1, phi2, beta, n_steps):
+    """:func:`_check_growth` for the largest spectral radius of a batch of decisions.
+
+    Every row of ``S = I - phi2 exp(-phi1 D**2)`` has absolute sum at most
+    ``|1 - phi2| + phi2 (n - 1)`` (Gershgorin), so the eigenvalues are computed only when
+    that bound allows overflow; ``S`` is symmetric, hence ``eigvalsh``.
+    """
+    n_options, n_attributes = batch.shape[1:]
+    bound = abs(1.0 - phi2) + phi2 * (n_options - 1)
+    if bound <= 1.0 or n_steps * math.log(bound) <= 690.0:
+        return
+    worst = 0.0
+    for lo in range(0, batch.shape[0], 4096):
+        M = batch[lo:lo + 4096]
+        diff = M[:, :, None, :] - M[:, None, :, :]
+        D = (diff**2).sum(axis=3) + (beta - 1.0) * diff.sum(axis=3) ** 2 / n_attributes
+        S = np.eye(n_options) - phi2 * np.exp(-phi1 * D**2)
+        worst = max(worst, float(np.abs(np.linalg.eigvalsh(S)).max()))
+    _check_growth(worst, n_steps)
 
 
 def _block_size(n_steps: int, n_attributes: int, n_options: int) -> int:

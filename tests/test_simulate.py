@@ -546,3 +546,26 @@ DECIDE = dict(phi1=0.01, phi2=0.01, beta=2.0, n_steps=10)
 def test_decide_validates(M, w, kw, error, match):
     with pytest.raises(error, match=match):
         mdft.decide(M, w, **{**DECIDE, **kw})
+
+
+def test_decide_refuses_overflow_like_simulate():
+    """rho(S) = 3.5 over 1000 steps: decide raises the error simulate raises."""
+    M = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+    kw = dict(phi1=0.0, phi2=1.5, beta=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = mdft.MDFTModel(M, [0.5, 0.5], **kw)
+    assert model.spectral_radius == pytest.approx(3.5)
+    match = r"preferences overflow over n_steps=1000 steps.*spectral radius 3.5 > 1"
+    with pytest.raises(ValueError, match=match):
+        mdft.simulate(model, 10, stopping=mdft.FixedTime(1000), rng=0)
+    with pytest.raises(ValueError, match=match):
+        mdft.decide(M, [0.5, 0.5], n_steps=1000, rng=0, **kw)
+    # a batch is checked too
+    batch = np.stack([M * 0.1] * 5 + [M])
+    with pytest.raises(ValueError, match=match):
+        mdft.decide(batch, [0.5, 0.5], n_steps=1000, rng=0, **kw)
+    # growth that stays inside floating point is allowed, as in simulate
+    assert mdft.decide(M, [0.5, 0.5], n_steps=500, rng=0, **kw) in (0, 1, 2)
+    ok = dict(phi1=0.022, phi2=0.05, beta=12.0)
+    assert mdft.decide(M, [0.5, 0.5], n_steps=1000, rng=0, **ok) in (0, 1, 2)

@@ -1,0 +1,400 @@
+"""Many fits at once: participants or problems fitted through an executor, resumably.
+
+:func:`fit_many` runs :func:`mdft.fit` on every problem through a
+:class:`concurrent.futures.Executor` (local processes by default, a Dask cluster when given),
+shows progress, and saves each finished fit atomically in a checkpoint folder, so that a
+re-run resumes without redoing finished fits. Each problem gets its own random seed, spawned
+from one :class:`numpy.random.SeedSequence`, so the results do not depend on the executor,
+the number of workers or the order in which fits finish.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import logging
+import multiprocessing
+import os
+import pickle
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._validation import as_count
+from .fit_result import FitResult, to_builtin
+
+__all__ = ["FitManyResult", "fit_many"]
+
+logger = logging.getLogger(__name__)
+
+_CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class FitManyResult:
+    """Outcome of :func:`fit_many`.
+
+    Attributes
+    ----------
+    keys : tuple
+        The problems' keys (indices for a sequence, the mapping's keys for a dict).
+    results : tuple of FitResult or None
+        One per key; None where the fit raised (with ``on_error="store"``).
+    errors : dict
+        ``key -> "ExceptionType: message"`` of the fits that raised.
+    seeds : tuple of int
+        The random seed each problem's fit used.
+    n_resumed : int
+        Fits read back from the checkpoint instead of being run.
+
+    Examples
+    --------
+    >>> import mdft
+    >>> fixed = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+    >>> problems = [dict(data=mdft.ChoiceData([[0, 1]], [[c, 100 - c]]), M=[[1, 3], [3, 1]])
+    ...             for c in (40, 60)]
+    >>> many = mdft.fit_many(problems, stopping=20, params=["w"], fixed=fixed, rng=0,
+    ...                      executor="serial")
+    >>> [round(float(r.params["w"][0]), 2) for r in many.results]
+    [0.54, 0.46]
+    >>> many.n_converged, len(many)
+    (2, 2)
+    """
+
+    keys: tuple
+    results: tuple
+    errors: dict
+    seeds: tuple
+    n_resumed: int = 0
+    checkpoint: str | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def __getitem__(self, key):
+        try:
+            return self.results[self.keys.index(key)]
+        except ValueError:
+            raise KeyError(f"no problem with key {key!r}") from None
+
+    @property
+    def n_converged(self) -> int:
+        """Fits that report ``converged=True``."""
+        return sum(1 for r in self.results if r is not None and r.converged)
+
+    def __repr__(self) -> str:
+        return (f"FitManyResult(n_problems={len(self)}, n_converged={self.n_converged}, "
+                f"n_errors={len(self.errors)}, n_resumed={self.n_resumed})")
+
+    def summary(self) -> str:
+        """A small text table: one row per problem (log-likelihood, converged, estimates).
+
+        Examples
+        --------
+        >>> import mdft
+        >>> fixed = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+        >>> problems = {"anna": dict(data=mdft.ChoiceData([[0, 1]], [[40, 60]]),
+        ...                          M=[[1, 3], [3, 1]])}
+        >>> print(mdft.fit_many(problems, stopping=20, params=["w"], fixed=fixed, rng=0,
+        ...                     executor="serial").summary())
+        key     log-lik  converged  estimates
+        anna     -2.511       True  w=[0.5355, 0.4645]
+        1 problems, 1 converged, 0 errors, 0 resumed
+        """
+        lines = [f"{'key':<6s} {'log-lik':>8s} {'converged':>10s}  estimates"]
+        for key, res in zip(self.keys, self.results):
+            if res is None:
+                lines.append(f"{str(key):<6s} {'':>8s} {'error':>10s}  {self.errors[key]}")
+                continue
+            est = ", ".join(
+                f"{k}={np.array2string(np.asarray(res.params[k]), precision=4, separator=', ')}"
+                if k in ("w", "M") else f"{k}={res.params[k]:.4g}" for k in res.fitted)
+            lines.append(f"{str(key):<6s} {res.log_likelihood:8.4g} {str(res.converged):>10s}"
+                         f"  {est}")
+        lines.append(f"{len(self)} problems, {self.n_converged} converged, "
+                     f"{len(self.errors)} errors, {self.n_resumed} resumed")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable builtins: keys, seeds, errors and every result's ``to_dict()``.
+
+        Examples
+        --------
+        >>> import json, mdft
+        >>> fixed = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+        >>> many = mdft.fit_many([dict(data=mdft.ChoiceData([[0, 1]], [[40, 60]]),
+        ...                            M=[[1, 3], [3, 1]])], stopping=20, params=["w"],
+        ...                      fixed=fixed, rng=0, executor="serial")
+        >>> sorted(json.loads(json.dumps(many.to_dict())))
+        ['errors', 'keys', 'n_resumed', 'results', 'seeds']
+        """
+        return {
+            "keys": to_builtin(list(self.keys)),
+            "seeds": [int(s) for s in self.seeds],
+            "errors": {str(k): v for k, v in self.errors.items()},
+            "n_resumed": int(self.n_resumed),
+            "results": [None if r is None else r.to_dict() for r in self.results],
+        }
+
+
+# ---------------------------------------------------------------- workers
+def _fit_one(kwargs, seed):
+    """Run one fit (in a worker); convergence warnings are in the result, not re-raised."""
+    from .fit import FitConvergenceWarning, fit
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitConvergenceWarning)
+        return fit(**kwargs, rng=seed)
+
+
+def _init_worker(n_threads):
+    """Worker initialiser: limit numba's threads so that workers do not oversubscribe cores."""
+    try:
+        import numba
+
+        numba.set_num_threads(max(1, min(n_threads, numba.config.NUMBA_NUM_THREADS)))
+    except (ImportError, ValueError):  # pragma: no cover - numba is a dependency
+        pass
+
+
+class _Serial(cf.Executor):
+    """Runs each submitted call at once in the calling process."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        future = cf.Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller via the future
+            future.set_exception(exc)
+        return future
+
+
+# ---------------------------------------------------------------- checkpoint
+def _fingerprint(kwargs, seed):
+    blob = pickle.dumps((sorted((k, kwargs[k]) for k in kwargs if k != "data"),
+                         kwargs.get("data"), int(seed)), protocol=4)
+    return hashlib.sha256(blob).hexdigest()
+
+
+def _save(path, payload):
+    """Write ``payload`` to ``path`` atomically (a temporary file renamed over it)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".pkl")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _load(path, fingerprint):
+    """The stored result of ``path`` if it was made from the same problem, else raise."""
+    with open(path, "rb") as fh:
+        payload = pickle.load(fh)
+    if not isinstance(payload, dict) or payload.get("version") != _CHECKPOINT_VERSION:
+        raise ValueError(f"checkpoint file {path} is not a fit_many checkpoint of this version")
+    if payload["fingerprint"] != fingerprint:
+        raise ValueError(
+            f"checkpoint file {path} holds the fit of a different problem or settings; "
+            "use a new checkpoint folder or delete the stale one"
+        )
+    return payload["result"]
+
+
+# ---------------------------------------------------------------- fit_many
+def _problem_list(problems):
+    if isinstance(problems, dict):
+        items = list(problems.items())
+    elif isinstance(problems, (list, tuple)):
+        items = list(enumerate(problems))
+    else:
+        raise TypeError(
+            "problems must be a list of dicts (or a dict of dicts keyed by participant) with "
+            f"the arguments of mdft.fit, e.g. dict(data=..., M=...) (got {type(problems).__name__})"
+        )
+    if not items:
+        raise ValueError("problems is empty: give at least one problem to fit")
+    for key, prob in items:
+        if not isinstance(prob, dict):
+            raise TypeError(
+                f"problems[{key!r}] must be a dict of mdft.fit arguments with 'data' and 'M' "
+                f"(got {type(prob).__name__})"
+            )
+        missing = [k for k in ("data", "M") if k not in prob]
+        if missing:
+            raise ValueError(f"problems[{key!r}] lacks {missing}; each problem needs data and M")
+        if "rng" in prob:
+            raise ValueError(
+                f"problems[{key!r}] gives rng; fit_many spawns one seed per problem from its "
+                "own rng= argument"
+            )
+    return items
+
+
+def _resolve_executor(executor, n_workers):
+    """``(executor, owned)``: the executor to submit to and whether fit_many must shut it down."""
+    if executor is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+        n = n_workers or max(1, min(cores, 8))
+        ctx = multiprocessing.get_context(
+            "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn")
+        pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
+                                      initargs=(1,))
+        return pool, True
+    if isinstance(executor, str):
+        if executor != "serial":
+            raise ValueError(
+                f"executor must be None, 'serial', a concurrent.futures.Executor or a "
+                f"dask.distributed Client (got {executor!r})"
+            )
+        return _Serial(), True
+    if hasattr(executor, "get_executor"):  # a dask.distributed Client
+        return executor.get_executor(), False
+    if isinstance(executor, cf.Executor) or hasattr(executor, "submit"):
+        return executor, False
+    raise TypeError(
+        "executor must be None, 'serial', a concurrent.futures.Executor or a dask.distributed "
+        f"Client (got {type(executor).__name__})"
+    )
+
+
+def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpoint=None,
+             rng=None, on_error="raise", **common) -> FitManyResult:
+    """Fit many problems (participants, data sets) with :func:`mdft.fit`, concurrently.
+
+    Parameters
+    ----------
+    problems : list of dict or dict of dict
+        Each problem holds the arguments of :func:`mdft.fit` that are its own: at least
+        ``data`` and ``M``, and any keyword (``stopping``, ``params``, ``fixed``, ...)
+        that overrides ``common``. A dict keys the problems (e.g. by participant).
+    executor : None, "serial", concurrent.futures.Executor or dask.distributed.Client
+        Where the fits run. None: a local process pool (``n_workers`` processes started
+        with ``"forkserver"`` where available, else ``"spawn"``, never ``"fork"``, which is
+        unsafe with numba's and OpenMP's threads; numba uses one thread per worker).
+        ``"serial"``: in this process, one after the other. An executor or a Dask
+        ``Client`` (its ``get_executor()``) is used as given and not shut down.
+    n_workers : int, optional
+        Processes of the default pool (default: the usable cores, at most 8).
+    progress : bool or callable, default False
+        True shows a ``tqdm`` progress bar; a callable is called as
+        ``progress(n_done, n_total, key, result)`` after each fit (``result`` is None for a
+        fit that raised).
+    checkpoint : str or path-like, optional
+        A folder: each finished fit is saved there atomically as it completes, and a later
+        call with the same folder reads finished fits back instead of running them. A file
+        made from a different problem, settings or seed raises ``ValueError``.
+    rng : None, int or numpy.random.SeedSequence
+        Root of the per-problem seeds (problem ``i`` uses the ``i``-th spawned child); the
+        same ``rng`` gives the same fits whatever the executor.
+    on_error : {"raise", "store"}, default "raise"
+        What to do when a fit raises: re-raise it (after saving the fits that finished), or
+        record it in :attr:`FitManyResult.errors` and go on.
+    **common
+        Keyword arguments of :func:`mdft.fit` shared by every problem.
+
+    Returns
+    -------
+    FitManyResult
+
+    Examples
+    --------
+    >>> import mdft
+    >>> fixed = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+    >>> problems = [dict(data=mdft.ChoiceData([[0, 1]], [[c, 100 - c]]), M=[[1, 3], [3, 1]])
+    ...             for c in (30, 50, 70)]
+    >>> done = []
+    >>> many = mdft.fit_many(problems, stopping=20, params=["w"], fixed=fixed, rng=0,
+    ...                      executor="serial", progress=lambda i, n, key, res: done.append(key))
+    >>> sorted(done), many.n_converged
+    ([0, 1, 2], 3)
+    """
+    items = _problem_list(problems)
+    if on_error not in ("raise", "store"):
+        raise ValueError(f"on_error must be 'raise' or 'store' (got {on_error!r})")
+    if "rng" in common:  # pragma: no cover - rng is a named argument
+        raise ValueError("rng is fit_many's own argument")
+    if n_workers is not None:
+        n_workers = as_count("n_workers", n_workers)
+    if not (isinstance(progress, bool) or callable(progress)):
+        raise TypeError(f"progress must be True, False or a callable (got {progress!r})")
+    root = rng if isinstance(rng, np.random.SeedSequence) else np.random.SeedSequence(
+        None if rng is None else int(np.random.default_rng(rng).integers(2**63)))
+    seeds = tuple(int(c.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+                  for c in root.spawn(len(items)))
+    folder = None
+    if checkpoint is not None:
+        folder = Path(checkpoint)
+        if folder.exists() and not folder.is_dir():
+            raise ValueError(f"checkpoint must be a folder (got the file {folder})")
+        folder.mkdir(parents=True, exist_ok=True)
+
+    n = len(items)
+    results = [None] * n
+    errors = {}
+    kwargs_list = [{**common, **prob} for _, prob in items]
+    prints = [_fingerprint(kw, s) for kw, s in zip(kwargs_list, seeds)]
+    todo = []
+    n_resumed = 0
+    for i in range(n):
+        path = folder / f"fit-{i:06d}.pkl" if folder is not None else None
+        if path is not None and path.exists():
+            results[i] = _load(path, prints[i])
+            n_resumed += 1
+        else:
+            todo.append(i)
+
+    bar = None
+    if progress is True:
+        try:
+            from tqdm.auto import tqdm
+        except ImportError as exc:  # pragma: no cover - tqdm is a dependency
+            raise ImportError("progress=True needs tqdm (pip install tqdm)") from exc
+        bar = tqdm(total=n, initial=n_resumed, desc="fits", unit="fit")
+    n_done = n_resumed
+
+    pool, owned = _resolve_executor(executor, n_workers) if todo else (_Serial(), True)
+    try:
+        futures = {pool.submit(_fit_one, kwargs_list[i], seeds[i]): i for i in todo}
+        for fut in cf.as_completed(futures):
+            i = futures[fut]
+            key = items[i][0]
+            try:
+                res = fut.result()
+            except Exception as exc:
+                if on_error == "raise":
+                    for other in futures:
+                        other.cancel()
+                    raise
+                errors[key] = f"{type(exc).__name__}: {exc}"
+                res = None
+            else:
+                results[i] = res
+                if folder is not None:
+                    _save(folder / f"fit-{i:06d}.pkl", {"version": _CHECKPOINT_VERSION,
+                                                        "fingerprint": prints[i], "key": key,
+                                                        "result": res})
+            n_done += 1
+            if bar is not None:
+                bar.update(1)
+            elif callable(progress):
+                progress(n_done, n, key, res)
+            logger.debug("fit %s done (%d of %d)", key, n_done, n)
+    finally:
+        if bar is not None:
+            bar.close()
+        if owned:
+            pool.shutdown(wait=True, cancel_futures=True)
+    for r in results:
+        if r is not None and not isinstance(r, FitResult):  # pragma: no cover - defensive
+            raise TypeError(f"a fit returned {type(r).__name__}, not a FitResult")
+    return FitManyResult(keys=tuple(k for k, _ in items), results=tuple(results),
+                         errors=errors, seeds=seeds, n_resumed=n_resumed,
+                         checkpoint=None if folder is None else str(folder))

@@ -1,0 +1,170 @@
+"""Multi-start optimisation on the unit cube, checked against a coarse global screen.
+
+:func:`multistart` minimises an objective over ``[0, 1]^k``:
+
+1. a scrambled Sobol screen of the cube (the coarse global search) ranks candidate starts;
+2. local optimisations (L-BFGS-B for smooth objectives, bounded Nelder-Mead otherwise) run
+   from the given first start and from the best, mutually distant screen points;
+3. the best optimum must be reached by at least two starts (within ``agree_tol``); if it is
+   not, up to ``n_confirm`` further starts from the next best distant screen points try to
+   reach it (or better). The best screen point is always a start, so no screened point is
+   better than the optimum returned;
+4. an optimum on a face of the cube is reported.
+
+The outcome says whether the optimum is confirmed (:attr:`MultiStartOutcome.converged`);
+the caller warns when it is not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize
+from scipy.stats import qmc
+
+__all__ = ["LocalRun", "MultiStartOutcome", "multistart"]
+
+#: A coordinate within this distance of 0 or 1 is on a bound.
+BOUND_TOL = 1e-3
+#: Screen points closer than this (largest coordinate difference) to a chosen start are skipped.
+_MIN_SPACING = 0.1
+
+
+@dataclass(frozen=True)
+class LocalRun:
+    """One local optimisation: start, optimum, value and the optimiser's report."""
+
+    start: np.ndarray
+    x: np.ndarray
+    fun: float
+    success: bool
+    message: str
+    n_iter: int
+
+
+@dataclass(frozen=True)
+class MultiStartOutcome:
+    """What :func:`multistart` found and how far it can vouch for it."""
+
+    best: LocalRun
+    runs: tuple
+    n_agree: int
+    screen_best: float
+    n_screen: int
+    on_bound: tuple
+    converged: bool
+    problems: tuple
+
+
+def _sobol(size, n, rng):
+    m = max(1, math.ceil(math.log2(max(n, 2))))
+    return qmc.Sobol(size, scramble=True, seed=rng).random_base2(m)[:n]
+
+
+def _local(objective, u0, *, smooth, max_iter, tol, fatol):
+    bounds = [(0.0, 1.0)] * u0.size
+    if smooth:
+        res = optimize.minimize(objective, u0, method="L-BFGS-B", jac="3-point", bounds=bounds,
+                                options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7})
+    else:
+        res = optimize.minimize(objective, u0, method="Nelder-Mead", bounds=bounds,
+                                options={"maxiter": max_iter * u0.size, "xatol": 1e-4,
+                                         "fatol": fatol, "adaptive": u0.size > 3})
+    x = np.clip(res.x, 0.0, 1.0)
+    return LocalRun(start=np.array(u0), x=x, fun=float(objective(x)), success=bool(res.success),
+                    message=str(res.message), n_iter=int(getattr(res, "nit", 0)))
+
+
+def _spread(points, taken, k):
+    """Up to ``k`` of ``points`` (best first) at least ``_MIN_SPACING`` from ``taken`` and
+    from each other; filled up with the closest ones if too few are far enough."""
+    chosen, rest = [], []
+    anchors = list(taken)
+    for i, x in enumerate(points):
+        if len(chosen) == k:
+            break
+        if all(np.max(np.abs(x - a)) >= _MIN_SPACING for a in anchors):
+            chosen.append(i)
+            anchors.append(x)
+        else:
+            rest.append(i)
+    return chosen + rest[: k - len(chosen)]
+
+
+def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, tol, fatol,
+               agree_tol, n_confirm=2):
+    """Minimise ``objective`` over the unit cube from several starts; see the module docs.
+
+    Parameters
+    ----------
+    objective : callable
+        ``f(u) -> float`` for ``u`` in ``[0, 1]^k``.
+    first : ndarray, shape (k,)
+        The first start.
+    n_starts : int
+        Local optimisations (the first start and ``n_starts - 1`` screened ones).
+    n_screen : int
+        Sobol points of the screen (0: no screen; then no further starts).
+    rng : numpy.random.Generator
+        Scrambles the Sobol sequence.
+    smooth : bool
+        L-BFGS-B with finite-difference gradients if True, else bounded Nelder-Mead.
+    max_iter, tol, fatol : optimiser settings.
+    agree_tol : float
+        Two optima agree when their objective values differ by at most this.
+    n_confirm : int
+        Extra starts when the best optimum was reached only once.
+
+    Returns
+    -------
+    MultiStartOutcome
+    """
+    first = np.asarray(first, dtype=np.float64)
+    size = first.size
+    kw = dict(smooth=smooth, max_iter=max_iter, tol=tol, fatol=fatol)
+    screen = np.empty((0, size))
+    values = np.empty(0)
+    if n_screen and n_starts > 1:
+        screen = _sobol(size, n_screen, rng)
+        values = np.array([objective(u) for u in screen])
+        order = np.argsort(values, kind="stable")
+        screen, values = screen[order], values[order]
+    screen_best = float(values[0]) if values.size else math.inf
+    used = set(_spread(screen, [first], n_starts - 1)) if values.size else set()
+    runs = [_local(objective, first, **kw)]
+    runs += [_local(objective, screen[i], **kw) for i in sorted(used)]
+
+    def agreeing():
+        best = min(r.fun for r in runs)
+        return sum(r.fun <= best + agree_tol for r in runs)
+
+    extra = 0
+    while n_starts > 1 and agreeing() < 2 and extra < n_confirm and len(used) < len(screen):
+        nxt = [i for i in _spread(screen, [screen[i] for i in used] + [first], len(screen))
+               if i not in used][:1]
+        if not nxt:
+            break
+        used.add(nxt[0])
+        runs.append(_local(objective, screen[nxt[0]], **kw))
+        extra += 1
+
+    best = min(runs, key=lambda r: r.fun)
+    n_agree = agreeing()
+    on_bound = tuple(int(i) for i in np.flatnonzero((best.x < BOUND_TOL) |
+                                                     (best.x > 1.0 - BOUND_TOL)))
+    problems = []
+    # a run that reached the best value and met its criterion vouches for the best one (an
+    # L-BFGS-B line search can end "abnormally" a rounding error away from the optimum)
+    if not any(r.success for r in runs if r.fun <= best.fun + agree_tol):
+        problems.append(f"the best start did not converge ({best.message})")
+    if n_starts > 1 and n_agree < 2:
+        problems.append(
+            f"the starts disagree: only one of {len(runs)} reached the best log-likelihood "
+            f"(within {agree_tol:g})"
+        )
+    converged = not problems and not on_bound
+    return MultiStartOutcome(best=best, runs=tuple(runs), n_agree=int(n_agree),
+                             screen_best=screen_best, n_screen=int(values.size),
+                             on_bound=on_bound, converged=converged, problems=tuple(problems))

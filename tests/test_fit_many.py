@@ -1,0 +1,140 @@
+"""mdft.fit_many: the same fits whatever the executor, progress, resumable checkpoints."""
+
+import pickle
+
+import numpy as np
+import pytest
+
+import mdft
+
+FIXED = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+M3 = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
+
+
+def make_problems(n=4, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        w = rng.uniform(0.3, 0.7)
+        model = mdft.MDFTModel(M3, [w, 1 - w], **FIXED)
+        counts = rng.multinomial(300, mdft.choice_probabilities(model, 30))
+        out.append(dict(data=mdft.ChoiceData([[0, 1, 2]], [counts]), M=M3))
+    return out
+
+
+COMMON = dict(stopping=30, params=["w"], fixed=FIXED, n_starts=2)
+
+
+def estimates(many):
+    return [r.params["w"][0] for r in many.results]
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return mdft.fit_many(make_problems(), rng=7, executor="serial", **COMMON)
+
+
+def test_serial_equals_individual_fits_with_the_spawned_seeds(serial):
+    for prob, res, seed in zip(make_problems(), serial.results, serial.seeds):
+        alone = mdft.fit(prob["data"], prob["M"], rng=seed, **COMMON)
+        assert alone.log_likelihood == res.log_likelihood
+    assert len(set(serial.seeds)) == len(serial.seeds) == 4
+    assert serial.n_converged == 4 and serial.errors == {} and serial.keys == (0, 1, 2, 3)
+
+
+def test_process_pool_and_thread_executor_give_the_same_fits(serial):
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = mdft.fit_many(make_problems(), rng=7, n_workers=2, **COMMON)
+    assert estimates(pool) == estimates(serial)
+    with ThreadPoolExecutor(2) as ex:
+        threads = mdft.fit_many(make_problems(), rng=7, executor=ex, **COMMON)
+    assert estimates(threads) == estimates(serial)
+
+
+def test_dask_local_cluster_gives_the_same_fits(serial):
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        many = mdft.fit_many(make_problems(), rng=7, executor=client, **COMMON)
+    assert estimates(many) == estimates(serial)
+
+
+def test_checkpoint_resumes_without_refitting(tmp_path, serial):
+    folder = tmp_path / "fits"
+    calls = []
+    first = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          progress=lambda *a: calls.append(a[2]), **COMMON)
+    assert sorted(calls) == [0, 1, 2, 3] and first.n_resumed == 0
+    files = sorted(p.name for p in folder.iterdir())
+    assert files == [f"fit-{i:06d}.pkl" for i in range(4)]  # no temporary files left
+    calls.clear()
+    again = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          progress=lambda *a: calls.append(a[2]), **COMMON)
+    assert calls == [] and again.n_resumed == 4
+    assert estimates(again) == estimates(serial)
+    (folder / "fit-000002.pkl").unlink()
+    third = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          progress=lambda *a: calls.append(a[2]), **COMMON)
+    assert calls == [2] and third.n_resumed == 3 and estimates(third) == estimates(serial)
+    # a checkpoint of other problems or seeds is refused, not silently reused
+    with pytest.raises(ValueError, match="holds the fit of a different problem"):
+        mdft.fit_many(make_problems(seed=1), rng=7, executor="serial", checkpoint=folder,
+                      **COMMON)
+    with pytest.raises(ValueError, match="holds the fit of a different problem"):
+        mdft.fit_many(make_problems(), rng=8, executor="serial", checkpoint=folder, **COMMON)
+    (folder / "fit-000000.pkl").write_bytes(pickle.dumps({"x": 1}))
+    with pytest.raises(ValueError, match="is not a fit_many checkpoint"):
+        mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
+
+
+def test_keyed_problems_errors_and_summary(tmp_path):
+    probs = dict(zip(["ann", "bob"], make_problems(2)))
+    probs["bad"] = dict(data=mdft.ChoiceData([[0, 5]], [[1, 1]]), M=M3)
+    with pytest.raises(ValueError, match="data refers to 6 options but M has only 3 rows"):
+        mdft.fit_many(probs, rng=0, executor="serial", **COMMON)
+    many = mdft.fit_many(probs, rng=0, executor="serial", on_error="store", **COMMON)
+    assert many["bad"] is None and "data refers to 6 options" in many.errors["bad"]
+    assert many["ann"].converged
+    with pytest.raises(KeyError, match="no problem with key 'eve'"):
+        many["eve"]
+    text = many.summary()
+    assert text.splitlines()[1].startswith("ann") and "error" in text.splitlines()[3]
+    assert "3 problems, 2 converged, 1 errors" in text
+    d = many.to_dict()
+    assert d["keys"] == ["ann", "bob", "bad"] and d["results"][2] is None
+    assert repr(many) == "FitManyResult(n_problems=3, n_converged=2, n_errors=1, n_resumed=0)"
+
+
+def test_progress_bar(capsys):
+    mdft.fit_many(make_problems(2), rng=0, executor="serial", progress=True, **COMMON)
+    assert "2/2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "problems, kwargs, exc, match",
+    [
+        ("abc", {}, TypeError, "problems must be a list of dicts"),
+        ([], {}, ValueError, "problems is empty"),
+        ([dict(data=None)], {}, ValueError, r"problems\[0\] lacks \['M'\]"),
+        ([[1, 2]], {}, TypeError, r"problems\[0\] must be a dict of mdft.fit arguments"),
+        ([dict(data=None, M=None, rng=1)], {}, ValueError, r"problems\[0\] gives rng"),
+        (None, dict(executor="cloud"), ValueError, "executor must be None, 'serial'"),
+        (None, dict(executor=3), TypeError, "executor must be None, 'serial'"),
+        (None, dict(on_error="ignore"), ValueError, "on_error must be 'raise' or 'store'"),
+        (None, dict(progress="yes"), TypeError, "progress must be True, False or a callable"),
+        (None, dict(n_workers=0), ValueError, "n_workers must be an integer >= 1"),
+    ],
+)
+def test_fit_many_bad_input(problems, kwargs, exc, match, tmp_path):
+    problems = make_problems(1) if problems is None else problems
+    with pytest.raises(exc, match=match):
+        mdft.fit_many(problems, **{**COMMON, "rng": 0, **kwargs})
+
+
+def test_checkpoint_must_be_a_folder(tmp_path):
+    f = tmp_path / "file.txt"
+    f.write_text("x")
+    with pytest.raises(ValueError, match="checkpoint must be a folder"):
+        mdft.fit_many(make_problems(1), rng=0, checkpoint=f, executor="serial", **COMMON)

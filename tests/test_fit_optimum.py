@@ -1,0 +1,140 @@
+"""Fits that find the maximum of the likelihood or say they may not have; the result's
+repr, summary and to_dict."""
+
+import importlib.util
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mdft
+from mdft.optimise import multistart
+
+
+def _load_benchmark():
+    """The benchmark's generator of random problems, so that test and benchmark draw alike."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fit_optimum.py"
+    spec = importlib.util.spec_from_file_location("bench_fit_optimum", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+BENCH = _load_benchmark()
+PARAMS = BENCH.PARAMS
+
+
+def random_problem(seed):
+    problem, truth = BENCH.random_problem(seed)
+    return problem["data"], problem["M"], problem["stopping"], truth
+
+
+def test_fit_reaches_the_likelihood_of_the_truth_or_does_not_claim_convergence():
+    """The maximum is never below the likelihood at the true parameters: a fit that stops
+    below it has missed the optimum and must say so (the benchmark
+    bench_fit_optimum.py measures the share on 100 problems)."""
+    reached, claimed_wrongly = 0, 0
+    n = 3
+    for seed in range(n):
+        data, M, T, truth = random_problem(seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+            res = mdft.fit(data, M, stopping=T, params=PARAMS, fixed=dict(beta=truth["beta"]),
+                           n_starts=3, rng=seed)
+        ok = res.log_likelihood >= res.log_likelihood_at({k: truth[k] for k in PARAMS}) - 0.01
+        reached += ok
+        claimed_wrongly += (not ok) and res.converged
+    assert claimed_wrongly == 0
+    assert reached >= n - 1
+
+
+def test_optimum_on_a_bound_warns_and_is_not_converged():
+    data, M, T, truth = random_problem(3)
+    fixed = {k: truth[k] for k in ("w", "phi1", "beta", "sigma2")}
+    with pytest.warns(mdft.FitConvergenceWarning, match=r"phi2 on a bound of its range"):
+        res = mdft.fit(data, M, stopping=T, params=["phi2"], fixed=fixed,
+                       bounds=dict(phi2=(0.3, 0.5)), n_starts=3, rng=0)
+    assert res.on_bound == ("phi2",) and not res.converged
+    assert "on a bound" in res.message and not np.isfinite(res.standard_errors["phi2"])
+
+
+def test_starts_that_disagree_are_reported():
+    # a narrow deep well at 0.9 that only the first start finds, a broad shallow one at 0.3
+    def f(u):
+        x = float(u[0])
+        return -2.0 * np.exp(-((x - 0.9) / 0.01) ** 2) - np.exp(-((x - 0.3) / 0.2) ** 2)
+
+    rng = np.random.default_rng(0)
+    out = multistart(f, np.array([0.9]), n_starts=3, n_screen=8, rng=rng, smooth=True,
+                     max_iter=200, tol=1e-12, fatol=1e-12, agree_tol=1e-3, n_confirm=2)
+    assert out.best.x[0] == pytest.approx(0.9, abs=1e-3)
+    assert out.n_agree == 1 and not out.converged and len(out.runs) == 5  # 3 + 2 confirmations
+    assert any("the starts disagree" in p for p in out.problems)
+    # the same search from a start in the broad well: every start agrees (on it)
+    out2 = multistart(lambda u: -np.exp(-((float(u[0]) - 0.3) / 0.2) ** 2), np.array([0.5]),
+                      n_starts=3, n_screen=8, rng=rng, smooth=True, max_iter=200, tol=1e-12,
+                      fatol=1e-12, agree_tol=1e-3)
+    assert out2.converged and out2.n_agree == 3 and out2.best.x[0] == pytest.approx(0.3, abs=1e-4)
+
+
+def test_fit_warns_when_only_one_start_reaches_the_best(monkeypatch):
+    data, M, T, truth = random_problem(1)
+    fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
+    with pytest.warns(mdft.FitConvergenceWarning, match="the starts disagree"):
+        res = mdft.fit(data, M, stopping=T, params=["w"], fixed=fixed, n_starts=2,
+                       n_confirm=0, agree_tol=0.0, max_iter=2, rng=0)
+    assert not res.converged
+
+
+def test_result_repr_summary_and_to_dict():
+    data, M, T, truth = random_problem(2)
+    fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
+    del fixed["phi2"]
+    res = mdft.fit(data, M, stopping=T, params=["w", "phi2"], fixed=fixed, n_starts=2, rng=0)
+    text = repr(res)
+    assert text.startswith("FitResult(w=[") and "phi2=" in text and len(text) < 200
+    lines = res.summary().splitlines()
+    assert lines[0].startswith("MDFT fit: 2 parameters, ")
+    assert lines[2].split()[0] == "w[0]" and lines[4].split()[0] == "phi2"
+    assert float(lines[4].split()[1]) == pytest.approx(res.params["phi2"], rel=1e-3)
+    d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert d["params"]["w"] == pytest.approx(res.params["w"].tolist())
+    assert d["log_likelihood"] == res.log_likelihood and d["stopping"] == {"n_steps": T}
+    assert d["params"]["theta"] is None and d["converged"] == res.converged
+
+
+def test_log_likelihood_at_bad_input():
+    res = mdft.fit(mdft.ChoiceData([[0, 1]], [[6, 4]]), [[1.0, 3.0], [3.0, 1.0]], stopping=10,
+                   fixed=dict(phi1=0.02, phi2=0.05, beta=12.0, sigma2=1.0), n_starts=1, rng=0)
+    with pytest.raises(TypeError, match="params must be a dict"):
+        res.log_likelihood_at([0.5, 0.5])
+    with pytest.raises(ValueError, match=r"params has unknown parameter name\(s\) \['tau'\]"):
+        res.log_likelihood_at({"tau": 1.0})
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(n_confirm=-1), "n_confirm must be an integer >= 0"),
+        (dict(agree_tol=-0.1), "agree_tol must be >= 0"),
+    ],
+)
+def test_optimiser_settings_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mdft.fit(mdft.ChoiceData([[0, 1]], [[6, 4]]), [[1.0, 3.0], [3.0, 1.0]], stopping=10,
+                 fixed=dict(phi1=0.02, phi2=0.05, beta=12.0, sigma2=1.0), rng=0, **kwargs)
+
+
+def test_failed_evaluations_are_reported():
+    # phi2 up to 3 over 1000 steps: part of the box overflows and cannot be evaluated
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        res = mdft.fit(mdft.ChoiceData([[0, 1]], [[60, 40]]), [[1.0, 3.0], [3.0, 1.0]],
+                       stopping=1000, params=["w", "phi2"],
+                       fixed=dict(phi1=0.0, beta=1.0, sigma2=1.0), bounds=dict(phi2=(0.0, 3.0)),
+                       rng=0)
+    assert "likelihood evaluations failed and counted as impossible" in res.message
+    assert "preferences overflow" in res.message
+    assert res.params["phi2"] < 2.0  # the optimum lies where the model can be evaluated

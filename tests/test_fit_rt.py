@@ -1,0 +1,160 @@
+"""Response times in the likelihood of mdft.fit: the joint likelihood of choice and
+decision step, binned times, identification of theta and sigma2, bad input."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import mdft
+
+M2 = np.array([[1.0, 3.0], [3.0, 1.0]])
+KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
+TRUTH = dict(w=np.array([0.6, 0.4]), sigma2=1.5, theta=6.0)
+MAX_STEPS = 400
+
+
+def model(w=TRUTH["w"], sigma2=TRUTH["sigma2"]):
+    return mdft.MDFTModel(M2, w, sigma2=sigma2, **KNOWN)
+
+
+@pytest.fixture(scope="module")
+def trials():
+    sim = mdft.simulate(model(), 400, stopping=mdft.Threshold(TRUTH["theta"], MAX_STEPS),
+                        rng=11)
+    assert sim.n_undecided == 0
+    return mdft.ChoiceData.from_trials([[0, 1]] * 400, sim.choices,
+                                       response_times=sim.decision_steps)
+
+
+@pytest.fixture(scope="module")
+def rt_fit(trials):
+    return mdft.fit(trials, M2, stopping=mdft.Threshold(4.0, MAX_STEPS),
+                    params=["sigma2", "theta"], fixed=dict(w=TRUTH["w"], **KNOWN),
+                    bounds=dict(sigma2=(0.2, 6.0), theta=(2.0, 20.0)), n_starts=2,
+                    n_screen_per_start=4, tol=1e-7, rng=0)
+
+
+def test_joint_log_likelihood_is_the_sum_over_trials_of_the_exact_pmf(trials, rt_fit):
+    assert rt_fit.likelihood == "choices and decision steps"
+    assert rt_fit.engine == "threshold_exact"
+    for s2, th in ((1.0, 5.0), (2.5, 8.0)):
+        ref = mdft.threshold_probabilities(model(sigma2=s2), th, max_steps=MAX_STEPS)
+        decided = 1.0 - ref.p_undecided
+        direct = sum(np.log(ref.rt_pmf[t.astype(int) - 1, i] / decided).sum()
+                     for i, t in enumerate(trials.response_times[0]))
+        got = rt_fit.log_likelihood_at(dict(sigma2=s2, theta=th))
+        assert got == pytest.approx(direct, rel=1e-10)
+
+
+def test_binned_log_likelihood_sums_the_pmf_over_bins(trials):
+    edges = [0, 5, 10, 20, 40, MAX_STEPS]
+    res = mdft.fit(trials, M2, stopping=mdft.Threshold(6.0, MAX_STEPS), params=["sigma2"],
+                   fixed=dict(w=TRUTH["w"], **KNOWN), rt_bins=edges, n_starts=1, max_iter=3,
+                   rng=0)
+    assert res.likelihood == "choices and binned decision steps"
+    np.testing.assert_array_equal(res.rt_bins, edges)
+    ref = mdft.threshold_probabilities(model(sigma2=2.0), 6.0, max_steps=MAX_STEPS)
+    cum = np.vstack([np.zeros(2), np.cumsum(ref.rt_pmf, axis=0)])
+    direct = 0.0
+    for i, t in enumerate(trials.response_times[0]):
+        b = np.searchsorted(edges, t, side="left") - 1
+        mass = (cum[edges[1:], i] - cum[edges[:-1], i]) / (1 - ref.p_undecided)
+        direct += np.log(mass[b]).sum()
+    assert res.log_likelihood_at(dict(sigma2=2.0)) == pytest.approx(direct, rel=1e-10)
+
+
+def test_response_times_identify_theta_and_sigma2(trials, rt_fit):
+    assert rt_fit.converged
+    for name in ("sigma2", "theta"):
+        se = rt_fit.standard_errors[name]
+        assert np.isfinite(se) and se > 0
+        # 4 standard errors: the estimate's own sampling error on 400 trials
+        assert abs(rt_fit.params[name] - TRUTH[name]) < 4 * se
+    # From the choices alone the two trade off: the same fit is far less precise
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        choice = mdft.fit(trials, M2, stopping=mdft.Threshold(4.0, MAX_STEPS),
+                          params=["sigma2", "theta"], fixed=dict(w=TRUTH["w"], **KNOWN),
+                          bounds=dict(sigma2=(0.2, 6.0), theta=(2.0, 20.0)), n_starts=2,
+                          n_screen_per_start=4, tol=1e-7, rng=0, response_times=False)
+    assert choice.likelihood == "choices"
+    se_theta = choice.standard_errors["theta"]
+    assert not np.isfinite(se_theta) or se_theta > 5 * rt_fit.standard_errors["theta"]
+
+
+def test_simulated_binned_likelihood_for_three_options():
+    M3 = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+    m = mdft.MDFTModel(M3, [0.5, 0.5], sigma2=1.0, **KNOWN)
+    sim = mdft.simulate(m, 300, stopping=mdft.Threshold(5.0, 300), rng=2)
+    data = mdft.ChoiceData.from_trials([[0, 1, 2]] * 300, sim.choices,
+                                       response_times=sim.decision_steps)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        res = mdft.fit(data, M3, stopping=mdft.Threshold(5.0, 300), params=["sigma2"],
+                       fixed=dict(w=[0.5, 0.5], **KNOWN), n_starts=1, n_samples=4000,
+                       max_iter=20, rng=0)
+    assert res.engine == "simulation" and res.likelihood == "choices and binned decision steps"
+    assert res.rt_bins[0] == 0 and res.rt_bins[-1] == 300 and res.rt_bins.size <= 11
+    # the truth (sigma2 = 1) is far more likely than a tenfold noise
+    assert res.log_likelihood_at(dict(sigma2=1.0)) > res.log_likelihood_at(dict(sigma2=10.0))
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        (dict(response_times="yes"), ValueError, "response_times must be 'auto', True or False"),
+        (dict(stopping=20, response_times=True), ValueError,
+         "response_times=True needs data with response times .* got fixed-time stopping"),
+        (dict(stopping=20, rt_bins=5), ValueError, "rt_bins is given but response times"),
+        (dict(rt_bins=[1, 5, MAX_STEPS]), ValueError, "rt_bins edges must cover every"),
+        (dict(rt_bins=[0, 5, 3, MAX_STEPS]), ValueError, "rt_bins must be an integer or increasing"),
+        (dict(rt_bins=0), ValueError, "rt_bins must be an integer >= 1"),
+        (dict(stopping=mdft.Threshold(6.0, 10)), ValueError, "beyond stopping.max_steps=10"),
+        (dict(params=["theta"], stopping=20), ValueError, "theta can be fitted only with"),
+        (dict(fixed=dict(theta=3.0, sigma2=1.0, **KNOWN)), ValueError,
+         r"theta is given by stopping=mdft.Threshold\(theta\)"),
+    ],
+)
+def test_fit_response_time_bad_input(trials, kwargs, exc, match):
+    args = dict(stopping=mdft.Threshold(6.0, MAX_STEPS), params=["w"],
+                fixed=dict(sigma2=1.0, **KNOWN), n_starts=1, max_iter=1, rng=0)
+    args.update(kwargs)
+    with pytest.raises(exc, match=match):
+        mdft.fit(trials, M2, **args)
+
+
+def test_times_must_be_decision_steps():
+    data = mdft.ChoiceData.from_trials([[0, 1]] * 3, [0, 1, 0], response_times=[0.4, 2, 3])
+    with pytest.raises(ValueError, match=r"response_times\[0\]\[0\] must be decision steps"):
+        mdft.fit(data, M2, stopping=mdft.Threshold(5.0, 100), fixed=dict(sigma2=1.0, **KNOWN),
+                 n_starts=1, rng=0)
+    no_rt = mdft.ChoiceData([[0, 1]], [[2, 1]])
+    with pytest.raises(ValueError, match="got no response times"):
+        mdft.fit(no_rt, M2, stopping=mdft.Threshold(5.0, 100), fixed=dict(sigma2=1.0, **KNOWN),
+                 response_times=True, n_starts=1, rng=0)
+
+
+@pytest.mark.parametrize(
+    "rts, exc, match",
+    [
+        ("abc", TypeError, "response_times must be a sequence with one entry per subset"),
+        ([[[1], [2]], [[3], [4]]], ValueError, "response_times must have one entry per subset"),
+        ([[[1, 2]]], ValueError, r"response_times\[0\] must hold one array per option"),
+        ([[[1, 2], [3]]], ValueError, r"response_times\[0\]\[0\] must hold one time per trial"),
+        ([[[1], [-3]]], ValueError, r"response_times\[0\]\[1\] must be >= 0"),
+        ([[[1], [np.nan]]], ValueError, "must contain only finite values"),
+    ],
+)
+def test_choice_data_response_times_bad_input(rts, exc, match):
+    with pytest.raises(exc, match=match):
+        mdft.ChoiceData([[0, 1]], [[1, 1]], response_times=rts)
+
+
+def test_choice_data_response_times_are_read_only_copies():
+    times = [np.array([3.0, 4.0]), np.array([5.0])]
+    d = mdft.ChoiceData([[0, 1]], [[2, 1]], response_times=[times])
+    times[0][0] = 99.0
+    assert d.response_times[0][0].tolist() == [3.0, 4.0] and d.has_response_times
+    with pytest.raises(ValueError, match="read-only"):
+        d.response_times[0][0][0] = 1.0
