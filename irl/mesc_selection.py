@@ -49,7 +49,6 @@ import numpy as np
 from . import mesc_solvers
 
 SUPPORT_EPS = 1e-8  # a penalty above this counts as selected by an L1 fit
-EXACT_BAND = 2.0  # drops whose estimated cost is below this many costs are refitted exactly
 
 
 def evidence_cost(n_decisions, n_features):
@@ -74,53 +73,37 @@ def _refit(obj, w0, support, opts):
     return mesc_solvers.lbfgsb(obj, np.where(support, w0, 0.0), free=support, **opts)
 
 
-def _held(obj, fit, idx):
-    """Held cost of dropping each feature in ``idx`` and the gradient there: ``(costs, gradients)``."""
-    N = obj.n_demonstrations
-    costs = np.empty(idx.size)
-    grads = []
-    for j, f in enumerate(idx):
+def _held(obj, fit, features):
+    """Cost in nats of dropping each of ``features`` with the other penalties held (one evaluation each)."""
+    costs = np.empty(len(features))
+    for j, f in enumerate(features):
         w = fit.penalties.copy()
         w[f] = 0.0
-        value, grad = obj._evaluate(w)
-        costs[j] = N * (fit.value - value)
-        grads.append(grad)
-    return costs, grads
+        costs[j] = obj.n_demonstrations * (fit.value - obj._evaluate(w)[0])
+    return costs
 
 
-def _curvature(obj, fit, idx):
-    """``-d2L/domega2`` on ``idx`` by forward differences of the exact gradient (symmetrised, PSD-clipped)."""
-    k = idx.size
-    hess = np.empty((k, k))
-    for j, f in enumerate(idx):
-        step = 1e-5 * (1.0 + fit.penalties[f])
+def _cheap_prefix(obj, fit, features, cost):
+    """Largest m such that dropping ``features[:m]`` together (others held) costs less than ``cost`` (m >= 1).
+
+    ``features[0]`` alone is known to cost less; bisection over m assumes the
+    joint cost grows with m (it is re-checked for the m returned).
+    """
+    def joint(m):
         w = fit.penalties.copy()
-        w[f] += step
-        hess[:, j] = -(obj._evaluate(w)[1][idx] - fit.gradient[idx]) / step
-    hess = 0.5 * (hess + hess.T)
-    vals, vecs = np.linalg.eigh(hess)
-    floor = 1e-9 * max(float(np.abs(vals).max()), 1e-12)
-    return vecs, np.maximum(vals, floor)
+        w[features[:m]] = 0.0
+        return obj.n_demonstrations * (fit.value - obj._evaluate(w)[0])
 
-
-def _estimated_drops(obj, fit, idx, held, grads):
-    """Second-order estimates of the refitted cost of dropping each feature (module docstring)."""
-    N = obj.n_demonstrations
-    vecs, vals = _curvature(obj, fit, idx)
-    inv = (vecs / vals) @ vecs.T
-    est = np.empty(idx.size)
-    g0 = fit.gradient[idx]
-    base_gain = 0.5 * N * float(g0 @ inv @ g0)  # what a Newton step would still gain on the support
-    for j, f in enumerate(idx):
-        # Schur complement: the quadratic model's cost of w_f -> 0 with the others refitted
-        schur = 0.5 * N * fit.penalties[f] ** 2 / inv[j, j]
-        # Newton gain of the others from the dropped point, on the exact held cost
-        rest = np.delete(np.arange(idx.size), j)
-        g = grads[j][idx[rest]]
-        sub = inv[np.ix_(rest, rest)] - np.outer(inv[rest, j], inv[j, rest]) / inv[j, j]
-        newton = held[j] + base_gain - 0.5 * N * float(g @ sub @ g)
-        est[j] = min(schur, newton)
-    return est
+    if features.size == 1 or joint(features.size) < cost:
+        return features.size
+    lo, hi = 1, features.size  # joint(lo) < cost <= joint(hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if joint(mid) < cost:
+            lo = mid
+        else:
+            hi = mid
+    return lo
 
 
 def path_strengths(lam_max, lam_cost, n_lambda):
@@ -179,53 +162,47 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     while support.any():
         removed = None
         for f in lazy:  # re-check those first: one evaluation each instead of one per feature
-            if support[f] and _held(obj, fit, np.array([f]))[0][0] < cost:
+            if support[f] and _held(obj, fit, [f])[0] < cost:
                 removed = f
                 break
         lazy = []
         idx = np.flatnonzero(support)
         if removed is None:
             # the cost of dropping f with the others held: an upper bound of the refitted cost
-            held, grads = _held(obj, fit, idx)
+            held = _held(obj, fit, idx)
             order = np.argsort(held, kind="stable")
             below = idx[order[held[order] < cost]]
-            if below.size > 1:
-                # drop them together when that costs less than one feature with the others held
-                w = fit.penalties.copy()
-                w[below] = 0.0
-                if N * (fit.value - obj._evaluate(w)[0]) < cost:
-                    removed = below
-            if removed is None and below.size:
-                removed, lazy = below[0], list(below[1:])
+            if below.size:
+                # the longest run of the cheapest that costs less than one feature when dropped together
+                m = _cheap_prefix(obj, fit, below, cost)
+                removed, lazy = below[:m], list(below[m:])
         if removed is not None:
             support[removed] = False
             fit = _refit(obj, fit.penalties, support, path_opts)
             n_fits += 1
             tight = False
             continue
-        if not tight:  # held costs at the final tolerance before the drops are estimated
+        if not tight:  # no feature is cheap with the others held: check again at the final tolerance
             fit = _refit(obj, fit.penalties, support, opts)
             n_fits += 1
             tight = True
             continue
-        # every feature survives with the others held; refitting without it reveals redundancy.
-        # Second-order estimates of the refitted costs decide which drops are refitted exactly.
-        est = _estimated_drops(obj, fit, idx, held, grads) if idx.size > 1 else held.copy()
-        exact = np.full(idx.size, np.inf)
-        refits = {}
-        for j in np.flatnonzero(est < EXACT_BAND * cost):
+        # every feature survives with the others held; refitting without it reveals redundancy
+        exact = np.empty(idx.size)
+        refits = []
+        for j, f in enumerate(idx):
             s2 = support.copy()
-            s2[idx[j]] = False
+            s2[f] = False
             r = _refit(obj, fit.penalties, s2, path_opts)
             n_fits += 1
             exact[j] = N * (fit.value - r.value)
-            refits[j] = (s2, r)
+            refits.append((s2, r))
         j = int(np.argmin(exact))
         if exact[j] < cost:
             support, fit = refits[j]
             tight = False
             continue
-        evidence[idx] = np.maximum(np.where(np.isfinite(exact), exact, est), 0.0)
+        evidence[idx] = np.maximum(exact, 0.0)
         break
     return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
 
@@ -237,8 +214,6 @@ def held_evidence(obj, fit):
     evidence of :func:`select`, used where refits are too costly.
     """
     evidence = np.zeros(obj.n_features)
-    for f in np.flatnonzero(fit.penalties > 0.0):
-        w = fit.penalties.copy()
-        w[f] = 0.0
-        evidence[f] = max(obj.n_demonstrations * (fit.value - obj._evaluate(w)[0]), 0.0)
+    idx = np.flatnonzero(fit.penalties > 0.0)
+    evidence[idx] = np.maximum(_held(obj, fit, idx), 0.0)
     return evidence
