@@ -69,10 +69,6 @@ class Selection:
     n_fits: int
 
 
-def _refit(obj, w0, support, opts):
-    return mesc_solvers.lbfgsb(obj, np.where(support, w0, 0.0), free=support, **opts)
-
-
 def _held(obj, fit, features):
     """Cost in nats of dropping each of ``features`` with the other penalties held (one evaluation each)."""
     costs = np.empty(len(features))
@@ -83,27 +79,8 @@ def _held(obj, fit, features):
     return costs
 
 
-def _cheap_prefix(obj, fit, features, cost):
-    """Largest m such that dropping ``features[:m]`` together (others held) costs less than ``cost`` (m >= 1).
-
-    ``features[0]`` alone is known to cost less; bisection over m assumes the
-    joint cost grows with m (it is re-checked for the m returned).
-    """
-    def joint(m):
-        w = fit.penalties.copy()
-        w[features[:m]] = 0.0
-        return obj.n_demonstrations * (fit.value - obj._evaluate(w)[0])
-
-    if features.size == 1 or joint(features.size) < cost:
-        return features.size
-    lo, hi = 1, features.size  # joint(lo) < cost <= joint(hi)
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if joint(mid) < cost:
-            lo = mid
-        else:
-            hi = mid
-    return lo
+def _refit(obj, w0, support, opts):
+    return mesc_solvers.lbfgsb(obj, np.where(support, w0, 0.0), free=support, **opts)
 
 
 def path_strengths(lam_max, lam_cost, n_lambda):
@@ -158,52 +135,38 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     support = support.copy()
     evidence = np.zeros(F)
     tight = False  # fit is a refit at the final tolerance
-    lazy = []  # features whose held cost was below cost at the last full evaluation, cheapest first
     while support.any():
-        removed = None
-        for f in lazy:  # re-check those first: one evaluation each instead of one per feature
-            if support[f] and _held(obj, fit, [f])[0] < cost:
-                removed = f
-                break
-        lazy = []
         idx = np.flatnonzero(support)
-        if removed is None:
-            # the cost of dropping f with the others held: an upper bound of the refitted cost
-            held = _held(obj, fit, idx)
-            order = np.argsort(held, kind="stable")
-            below = idx[order[held[order] < cost]]
-            if below.size:
-                # the longest run of the cheapest that costs less than one feature when dropped together
-                m = _cheap_prefix(obj, fit, below, cost)
-                removed, lazy = below[:m], list(below[m:])
-        if removed is not None:
-            support[removed] = False
+        # the cost of dropping f with the others held: an upper bound of the refitted cost
+        held = _held(obj, fit, idx)
+        if held.min() < cost:
+            support[idx[int(np.argmin(held))]] = False
             fit = _refit(obj, fit.penalties, support, path_opts)
             n_fits += 1
             tight = False
             continue
-        if not tight:  # no feature is cheap with the others held: check again at the final tolerance
+        if not tight:
             fit = _refit(obj, fit.penalties, support, opts)
             n_fits += 1
             tight = True
-            continue
-        # every feature survives with the others held; refitting without it reveals redundancy
-        exact = np.empty(idx.size)
-        refits = []
-        for j, f in enumerate(idx):
+        # every feature survives with the others held: refit without each to see redundancy
+        drops = []
+        for f in idx:
             s2 = support.copy()
             s2[f] = False
             r = _refit(obj, fit.penalties, s2, path_opts)
             n_fits += 1
-            exact[j] = N * (fit.value - r.value)
-            refits.append((s2, r))
-        j = int(np.argmin(exact))
-        if exact[j] < cost:
-            support, fit = refits[j]
-            tight = False
+            drops.append((N * (fit.value - r.value), f, s2, r))
+        gain, f, s2, r = min(drops, key=lambda d: d[0])
+        if gain < cost:
+            support, fit, tight = s2, r, False
             continue
-        evidence[idx] = np.maximum(exact, 0.0)
+        for g, f, _, _ in drops:
+            evidence[f] = max(g, 0.0)
         break
+    if support.any() and not tight:
+        fit = _refit(obj, fit.penalties, support, opts)
+        n_fits += 1
     return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
 
 
