@@ -145,6 +145,7 @@ class MESCObjective:
         self._policy = np.empty((H, S, A))
         self._shared = _kernels.shared_successors(nominal.next_states)
         self.n_evaluations = 0
+        self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
     @property
     def n_features(self) -> int:
@@ -168,6 +169,19 @@ class MESCObjective:
         return self._evaluate(w)
 
     def _evaluate(self, w):
+        # the optimisers often ask again for a point just evaluated (a solver's last iterate, the
+        # warm start of the next refit): the last few results are kept, keyed by the exact bytes
+        key = w.tobytes()
+        hit = self._recent.get(key)
+        if hit is not None:
+            return hit[0], hit[1].copy()
+        value, grad = self._compute(w)
+        if len(self._recent) >= 4:
+            self._recent.pop(next(iter(self._recent)))
+        self._recent[key] = (value, grad.copy())
+        return value, grad
+
+    def _compute(self, w):
         nom = self.nominal
         _, loglik = self._backward(w)
         sa, dst = _kernels.likelihood_adjoint(

@@ -201,8 +201,6 @@ def test_features_of_wrong_size():
 
 @pytest.mark.parametrize("n_states,n_features", [(30, 20), (600, 500)])  # dense copies below the size limit, CSR above
 def test_feature_products_match_dense_algebra(n_states, n_features):
-    import scipy.sparse as sp
-
     rng = np.random.default_rng(n_states)
     src = sp.random(n_states, n_features, density=0.05, random_state=1)
     act = sp.random(4, n_features, density=0.3, random_state=2)

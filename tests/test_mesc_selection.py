@@ -331,3 +331,29 @@ def test_bad_selection_input():
         MESCResult.from_penalties(nom, w, evidence=-np.ones(world.n_features), evidence_cost=1.0)
     with pytest.raises(ValueError, match=r"evidence_cost must be >= 0"):
         MESCResult.from_penalties(nom, w, evidence=np.zeros(world.n_features), evidence_cost=-1.0)
+
+
+def test_repeated_points_are_served_from_the_last_evaluations(monkeypatch):
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=4)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    w = np.random.default_rng(0).uniform(0, 3, world.n_features)
+    value, grad = obj._evaluate(w)
+    n = obj.n_evaluations
+    grad[:] = 0.0  # a caller's change must not reach the kept copy
+    again = obj._evaluate(w.copy())
+    assert obj.n_evaluations == n
+    fresh = obj._compute(w)
+    assert again[0] == fresh[0]
+    np.testing.assert_array_equal(again[1], fresh[1])
+    # a whole default fit is the same, bit for bit, with every point computed afresh
+    res = mesc_irl(world.nominal_mdp, demos)
+
+    def uncached(self, w):
+        return self._compute(w)
+
+    monkeypatch.setattr(mesc_module.MESCObjective, "_evaluate", uncached)
+    ref = mesc_irl(world.nominal_mdp, demos)
+    np.testing.assert_array_equal(res.penalties, ref.penalties)
+    np.testing.assert_array_equal(res.evidence, ref.evidence)
+    assert res.n_evaluations < ref.n_evaluations
