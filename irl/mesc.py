@@ -83,6 +83,9 @@ def feasible_reward_sd(mdp):
     return float(np.std(mdp.rewards[mask]))
 
 
+RECENT_EVALUATIONS = 64  # evaluations MESCObjective keeps (each: omega's bytes and the gradient, 2 F floats)
+
+
 class MESCObjective:
     """The MESC-IRL objective L(omega) and its exact gradient on fixed data.
 
@@ -170,13 +173,14 @@ class MESCObjective:
 
     def _evaluate(self, w):
         # the optimisers often ask again for a point just evaluated (a solver's last iterate, the
-        # warm start of the next refit): the last few results are kept, keyed by the exact bytes
+        # warm start of the next refit, often a point of the held costs): the last results are kept,
+        # keyed by the exact bytes
         key = w.tobytes()
         hit = self._recent.get(key)
         if hit is not None:
             return hit[0], hit[1].copy()
         value, grad = self._compute(w)
-        if len(self._recent) >= 4:
+        if len(self._recent) >= RECENT_EVALUATIONS:
             self._recent.pop(next(iter(self._recent)))
         self._recent[key] = (value, grad.copy())
         return value, grad
