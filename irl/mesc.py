@@ -104,7 +104,10 @@ class MESCObjective:
     See the module docstring for L. ``objective(omega)`` returns
     ``(L, dL/domega)``, L being the mean log-likelihood per demonstration. One
     evaluation costs one backward and one forward pass (``O(H S A K)``) and
-    keeps one (H, S, A) policy buffer.
+    keeps one (H, S, A) policy buffer. The optimisers often return to a point
+    they have just evaluated; the last 64 evaluations are kept (keyed by the
+    exact bytes of omega, so a repeated point gets the identical answer) and
+    ``n_evaluations`` counts only those computed.
 
     Examples
     --------
@@ -177,13 +180,29 @@ class MESCObjective:
         # keyed by the exact bytes
         key = w.tobytes()
         hit = self._recent.get(key)
-        if hit is not None:
+        if hit is not None and hit[1] is not None:
             return hit[0], hit[1].copy()
         value, grad = self._compute(w)
+        self._keep(key, value, grad.copy())
+        return value, grad
+
+    def _value(self, w):
+        """L alone (the backward pass, without the adjoint pass of the gradient); same caching."""
+        key = w.tobytes()
+        hit = self._recent.get(key)
+        if hit is not None:
+            return hit[0]
+        _, loglik = self._backward(w)
+        self.n_evaluations += 1
+        value = loglik * self._weight
+        self._keep(key, value, None)
+        return value
+
+    def _keep(self, key, value, grad):
+        self._recent.pop(key, None)
         if len(self._recent) >= RECENT_EVALUATIONS:
             self._recent.pop(next(iter(self._recent)))
-        self._recent[key] = (value, grad.copy())
-        return value, grad
+        self._recent[key] = (value, grad)
 
     def _compute(self, w):
         nom = self.nominal

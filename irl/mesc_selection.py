@@ -75,7 +75,7 @@ def _held(obj, fit, features):
     for j, f in enumerate(features):
         w = fit.penalties.copy()
         w[f] = 0.0
-        costs[j] = obj.n_demonstrations * (fit.value - obj._evaluate(w)[0])
+        costs[j] = obj.n_demonstrations * (fit.value - obj._value(w))
     return costs
 
 

@@ -346,6 +346,14 @@ def test_repeated_points_are_served_from_the_last_evaluations(monkeypatch):
     fresh = obj._compute(w)
     assert again[0] == fresh[0]
     np.testing.assert_array_equal(again[1], fresh[1])
+    # the value alone (backward pass only) is the same number; a point first asked for its value
+    # alone is computed in full when its gradient is asked for
+    w2 = w + 0.5
+    assert obj._value(w2) == obj._compute(w2)[0]
+    n = obj.n_evaluations
+    value2, grad2 = obj._evaluate(w2)
+    assert obj.n_evaluations == n + 1 and value2 == obj._value(w2) and obj.n_evaluations == n + 1
+    np.testing.assert_array_equal(grad2, obj._compute(w2)[1])
     # a whole default fit is the same, bit for bit, with every point computed afresh
     res = mesc_irl(world.nominal_mdp, demos)
 
