@@ -126,6 +126,18 @@ def _readonly(arr):
     return arr
 
 
+DENSE_OPERATOR_MAX = 200_000  # entries: below, repeated feature products use a dense copy
+
+
+def _fast_operator(m):
+    """None for an empty block, a dense float array when small, CSR otherwise (repeated products)."""
+    if m.nnz == 0:
+        return None
+    if m.shape[0] * m.shape[1] <= DENSE_OPERATOR_MAX:
+        return np.ascontiguousarray(m.toarray(), dtype=np.float64)
+    return sp.csr_array(m, dtype=np.float64)
+
+
 def _as_sparse(name, value, n_rows, n_features):
     if value is None:
         return sp.csr_array((n_rows, n_features))
@@ -257,10 +269,17 @@ class TransitionFeatures:
         return self._projections(w)
 
     def _projections(self, w):
-        return tuple(
-            np.zeros(m.shape[0]) if m.nnz == 0 else np.asarray(m @ w, dtype=np.float64)
-            for m in (self.source, self.action, self.destination)
-        )
+        return tuple(np.zeros(n) if m is None else m @ w for m, n in zip(self._operators, self._block_rows))
+
+    @cached_property
+    def _block_rows(self):
+        return tuple(m.shape[0] for m in (self.source, self.action, self.destination))
+
+    @cached_property
+    def _operators(self):
+        # the non-empty blocks for repeated products: dense when small (a dense product of a few
+        # thousand entries is far cheaper than a sparse product's call overhead), CSR otherwise
+        return tuple(_fast_operator(m) for m in (self.source, self.action, self.destination))
 
     def counts(self, d_src: ArrayLike, d_act: ArrayLike, d_dst: ArrayLike) -> np.ndarray:
         """Feature counts ``source.T d_src + action.T d_act + destination.T d_dst``, shape (n_features,)."""
@@ -273,9 +292,7 @@ class TransitionFeatures:
     @cached_property
     def _transposed(self):
         # CSR copies of the transposed non-empty blocks: fast repeated counts
-        return tuple(
-            None if m.nnz == 0 else sp.csr_array(m.T) for m in (self.source, self.action, self.destination)
-        )
+        return tuple(_fast_operator(m.T) for m in (self.source, self.action, self.destination))
 
     def phi(self, s: int, a: int, s_next: int) -> np.ndarray:
         """Dense feature vector phi(s, a, s') of one transition, shape (n_features,)."""

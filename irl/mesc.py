@@ -83,6 +83,9 @@ def feasible_reward_sd(mdp):
     return float(np.std(mdp.rewards[mask]))
 
 
+RECENT_EVALUATIONS = 64  # evaluations MESCObjective keeps (each: omega's bytes and the gradient, 2 F floats)
+
+
 class MESCObjective:
     """The MESC-IRL objective L(omega) and its exact gradient on fixed data.
 
@@ -101,7 +104,10 @@ class MESCObjective:
     See the module docstring for L. ``objective(omega)`` returns
     ``(L, dL/domega)``, L being the mean log-likelihood per demonstration. One
     evaluation costs one backward and one forward pass (``O(H S A K)``) and
-    keeps one (H, S, A) policy buffer.
+    keeps one (H, S, A) policy buffer. The optimisers often return to a point
+    they have just evaluated; the last 64 evaluations are kept (keyed by the
+    exact bytes of omega, so a repeated point gets the identical answer) and
+    ``n_evaluations`` counts only those computed.
 
     Examples
     --------
@@ -145,6 +151,7 @@ class MESCObjective:
         self._policy = np.empty((H, S, A))
         self._shared = _kernels.shared_successors(nominal.next_states)
         self.n_evaluations = 0
+        self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
     @property
     def n_features(self) -> int:
@@ -168,6 +175,36 @@ class MESCObjective:
         return self._evaluate(w)
 
     def _evaluate(self, w):
+        # the optimisers often ask again for a point just evaluated (a solver's last iterate, the
+        # warm start of the next refit, often a point of the held costs): the last results are kept,
+        # keyed by the exact bytes
+        key = w.tobytes()
+        hit = self._recent.get(key)
+        if hit is not None and hit[1] is not None:
+            return hit[0], hit[1].copy()
+        value, grad = self._compute(w)
+        self._keep(key, value, grad.copy())
+        return value, grad
+
+    def _value(self, w):
+        """L alone (the backward pass, without the adjoint pass of the gradient); same caching."""
+        key = w.tobytes()
+        hit = self._recent.get(key)
+        if hit is not None:
+            return hit[0]
+        _, loglik = self._backward(w)
+        self.n_evaluations += 1
+        value = loglik * self._weight
+        self._keep(key, value, None)
+        return value
+
+    def _keep(self, key, value, grad):
+        self._recent.pop(key, None)
+        if len(self._recent) >= RECENT_EVALUATIONS:
+            self._recent.pop(next(iter(self._recent)))
+        self._recent[key] = (value, grad)
+
+    def _compute(self, w):
         nom = self.nominal
         _, loglik = self._backward(w)
         sa, dst = _kernels.likelihood_adjoint(

@@ -69,6 +69,16 @@ class Selection:
     n_fits: int
 
 
+def _held(obj, fit, features):
+    """Cost in nats of dropping each of ``features`` with the other penalties held (one evaluation each)."""
+    costs = np.empty(len(features))
+    for j, f in enumerate(features):
+        w = fit.penalties.copy()
+        w[f] = 0.0
+        costs[j] = obj.n_demonstrations * (fit.value - obj._value(w))
+    return costs
+
+
 def _refit(obj, w0, support, opts):
     return mesc_solvers.lbfgsb(obj, np.where(support, w0, 0.0), free=support, **opts)
 
@@ -128,11 +138,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     while support.any():
         idx = np.flatnonzero(support)
         # the cost of dropping f with the others held: an upper bound of the refitted cost
-        held = np.empty(idx.size)
-        for j, f in enumerate(idx):
-            w = fit.penalties.copy()
-            w[f] = 0.0
-            held[j] = N * (fit.value - obj._evaluate(w)[0])
+        held = _held(obj, fit, idx)
         if held.min() < cost:
             support[idx[int(np.argmin(held))]] = False
             fit = _refit(obj, fit.penalties, support, path_opts)
@@ -171,8 +177,6 @@ def held_evidence(obj, fit):
     evidence of :func:`select`, used where refits are too costly.
     """
     evidence = np.zeros(obj.n_features)
-    for f in np.flatnonzero(fit.penalties > 0.0):
-        w = fit.penalties.copy()
-        w[f] = 0.0
-        evidence[f] = max(obj.n_demonstrations * (fit.value - obj._evaluate(w)[0]), 0.0)
+    idx = np.flatnonzero(fit.penalties > 0.0)
+    evidence[idx] = np.maximum(_held(obj, fit, idx), 0.0)
     return evidence

@@ -197,3 +197,19 @@ def test_features_of_wrong_size():
         mdp.penalised(np.ones(5))
     with pytest.raises(ValueError, match="penalised needs an MDP with features"):
         MDP.from_dense(P, R).penalised(np.ones(4))
+
+
+@pytest.mark.parametrize("n_states,n_features", [(30, 20), (600, 500)])  # dense copies below the size limit, CSR above
+def test_feature_products_match_dense_algebra(n_states, n_features):
+    rng = np.random.default_rng(n_states)
+    src = sp.random(n_states, n_features, density=0.05, random_state=1)
+    act = sp.random(4, n_features, density=0.3, random_state=2)
+    feats = TransitionFeatures(source=src, action=act)
+    w = rng.normal(size=n_features)
+    u_src, u_act, u_dst = feats.projections(w)
+    np.testing.assert_allclose(u_src, src.toarray() @ w, atol=1e-12)
+    np.testing.assert_allclose(u_act, act.toarray() @ w, atol=1e-12)
+    np.testing.assert_array_equal(u_dst, np.zeros(n_states))
+    d_src, d_act, d_dst = rng.normal(size=n_states), rng.normal(size=4), rng.normal(size=n_states)
+    np.testing.assert_allclose(feats.counts(d_src, d_act, d_dst), src.toarray().T @ d_src + act.toarray().T @ d_act,
+                               atol=1e-12)
