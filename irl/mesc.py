@@ -42,7 +42,7 @@ import numpy as np
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
 from .mdp import MDP, _as_float, _as_int, _as_real
-from ._repr import compact_repr
+from ._repr import compact_repr, iterations
 from .mesc_selection import evidence_cost
 
 __all__ = ["MESCObjective", "MESCResult", "LearnedConstraint", "mesc_irl", "constraint_probability"]
@@ -437,6 +437,34 @@ class MESCResult:
         return tuple(
             LearnedConstraint(int(i), self.feature_names[i], float(self.penalties[i]), float(self.zeta[i])) for i in idx
         )
+
+    def summary(self, *, min_zeta: float = 0.5) -> str:
+        """The fit and the constraints with ``zeta >= min_zeta``, as text.
+
+        Examples
+        --------
+        >>> import irl
+        >>> world = irl.GridWorld(4, 0, 15, constrained_states=[5, 10], p_slip=0.0)
+        >>> demos = irl.generate_demonstrations(world.constrained_mdp, 50, rng=0)
+        >>> print(irl.mesc_irl(world.nominal_mdp, demos).summary(min_zeta=0.6))
+        ... # doctest: +ELLIPSIS
+        MESC-IRL: 27 features, 2 with zeta >= 0.6, selection evidence, converged after ...
+        log-likelihood per demonstration -3.08... (50 demonstrations, horizon 9)
+          #  constraint                 penalty     zeta
+          1  state 10                    7.19...   0.91...
+          2  state 5                     7.19...   0.91...
+        """
+        ranked = self.ranked_constraints(min_zeta=min_zeta)
+        rows = [f"{'#':>3s}  {'constraint':<24s} {'penalty':>9s} {'zeta':>8s}"]
+        rows += [f"{k + 1:3d}  {c.name:<24s} {c.penalty:9.4f} {c.zeta:8.4f}"
+                 for k, c in enumerate(ranked)]
+        return (f"MESC-IRL: {self.penalties.size} features, {len(ranked)} with zeta >= "
+                f"{min_zeta:g}, selection {self.selection}, "
+                f"{iterations(self.n_iter, self.converged)}\n"
+                + (f"log-likelihood per demonstration {self.objective:.4f} "
+                   f"({self.n_demonstrations} demonstrations, horizon {self.horizon})\n"
+                   if self.n_demonstrations else "no demonstrations (penalties given)\n")
+                + "\n".join(rows))
 
     def save(self, path):
         """Write the result to JSON (see :func:`irl.io.save_mesc_result`)."""

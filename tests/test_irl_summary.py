@@ -33,3 +33,15 @@ def test_metric_summaries():
     errors = irl.soft_constraint_errors([0, -50, -50], [0.2, 0.9, 0.9], [0.9, 0.1, 0.85])
     text = errors.summary()
     assert f"false negatives: {errors.n_false_negative} ({errors.false_negatives:.4f}" in text
+
+
+def test_mesc_summary_lists_the_ranked_constraints_and_says_when_no_data_were_fitted():
+    world = irl.GridWorld(4, 0, 15, constrained_states=[5], constrained_actions=["left"])
+    res = irl.MESCResult.from_penalties(world.nominal_mdp, world.true_penalties)
+    for min_zeta in (0.5, 0.95):
+        text = res.summary(min_zeta=min_zeta).splitlines()
+        ranked = res.ranked_constraints(min_zeta=min_zeta)
+        assert text[1] == "no demonstrations (penalties given)"
+        assert [line.split(None, 1)[1].rsplit(None, 2)[0] for line in text[3:]] == \
+            [c.name for c in ranked]
+        assert f"{len(ranked)} with zeta >= {min_zeta:g}" in text[0]
