@@ -25,7 +25,7 @@ _MIN_SD_CELLS = 0.5
 # At least this many cells per theta along each axis (kappa = 1).
 _MIN_CELLS_PER_THETA = 6.0
 # Levels of the summed preference are this many times the finer cell size.
-_LEVEL_FACTOR = 1.5
+_LEVEL_FACTOR = 3.0
 # Largest index box (levels x cells x cells) the builder may allocate.
 _MAX_BOX = 40_000_000
 

@@ -196,7 +196,7 @@ class ThresholdProbabilities:
 
 def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=2.5e-3,
                             n_cells=None, resolution=None, method="propagate", tol=1e-10,
-                            tail_tol=1e-7, max_iter=2_000, max_states=150_000):
+                            tail_tol=1e-7, max_iter=2_000, max_states=100_000):
     """Choice probabilities and response-time distribution of threshold stopping.
 
     The stopped MDFT process becomes an absorbing Markov chain on a grid of
@@ -246,7 +246,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         of ``rt_pmf`` is filled in geometrically. 0 propagates every step.
     max_iter : int, default 2000
         Iteration limit of GMRES, per right-hand side.
-    max_states : int, default 150_000
+    max_states : int, default 100_000
         Largest chain the method may build; a model that needs more to meet
         the tolerances raises ValueError.
 
