@@ -44,7 +44,7 @@ _BINARY_MAX_CELLS = 3_000
 # Three options: first resolution (cell size in per-step standard deviations) and refinements.
 _KAPPA = 1.0
 _REFINE = math.sqrt(2.0)
-_MAX_REFINEMENTS = 2
+_MAX_REFINEMENTS = 4
 # Mean response times of options chosen less often than this weigh in proportionally.
 _RT_WEIGHT_FLOOR = 0.01
 
@@ -194,7 +194,7 @@ class ThresholdProbabilities:
         return {name: clean(getattr(self, name)) for name in names}
 
 
-def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=2.5e-3,
+def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=3e-3,
                             n_cells=None, resolution=None, method="propagate", tol=1e-10,
                             tail_tol=1e-7, max_iter=2_000, max_states=100_000):
     """Choice probabilities and response-time distribution of threshold stopping.
@@ -219,7 +219,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     atol : float, default 1e-3
         Tolerance of the estimated error of the choice probabilities (and of
         ``p_undecided``).
-    rt_rtol : float, default 2.5e-3
+    rt_rtol : float, default 3e-3
         Tolerance of the estimated relative error of the mean response times.
     n_cells : int, optional
         Two options only: a fixed lattice resolution (cells per ``theta``,
