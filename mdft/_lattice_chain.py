@@ -98,6 +98,23 @@ def sum_bounds(S, theta, s0):
     )
 
 
+def pair_parameters(cov, sd_opt):
+    """``pair_sd[i, k]``: sd of ``P_k - P_i``; ``pair_rho[i, k]``: its correlation with ``P_i``."""
+    n = cov.shape[0]
+    pair_sd = np.zeros((n, n))
+    pair_rho = np.zeros((n, n))
+    for i in range(n):
+        for k in range(n):
+            if i == k:
+                continue
+            var_y = cov[k, k] + cov[i, i] - 2 * cov[i, k]
+            pair_sd[i, k] = math.sqrt(max(var_y, 0.0))
+            if pair_sd[i, k] > 0 and sd_opt[i] > 0:
+                rho = (cov[i, k] - cov[i, i]) / (pair_sd[i, k] * sd_opt[i])
+                pair_rho[i, k] = min(max(rho, -1 + 1e-12), 1 - 1e-12)
+    return pair_sd, pair_rho
+
+
 def sum_is_constant(S, s0):
     """True when ``1^T S P = 1^T P`` along every path from a start with sum ``s0``."""
     c = S.sum(axis=0)
@@ -178,17 +195,7 @@ def build_chain(model, theta, n_cells, variance_correction):
         sd_cell = np.sqrt(np.clip(sd_axis**2 - spac**2 / 12.0, 0.0, None))
     else:
         sd_cell = sd_axis.copy()
-    pair_sd = np.zeros((n, n))
-    pair_rho = np.zeros((n, n))
-    for i in range(n):
-        for k in range(n):
-            if i == k:
-                continue
-            var_y = cov[k, k] + cov[i, i] - 2 * cov[i, k]
-            pair_sd[i, k] = math.sqrt(max(var_y, 0.0))
-            if pair_sd[i, k] > 0 and sd_opt[i] > 0:
-                rho = (cov[i, k] - cov[i, i]) / (pair_sd[i, k] * sd_opt[i])
-                pair_rho[i, k] = min(max(rho, -1 + 1e-12), 1 - 1e-12)
+    pair_sd, pair_rho = pair_parameters(cov, sd_opt)
     CM = np.ascontiguousarray(C @ model.M)
     A = np.ascontiguousarray(E.T @ CM)
     w = np.ascontiguousarray(model.w, dtype=np.float64)

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _lattice, _plane
-from ._lattice_chain import Chain, sum_bounds, sum_is_constant
+from ._lattice_chain import Chain, pair_parameters, sum_bounds, sum_is_constant
 
 logger = logging.getLogger(__name__)
 
@@ -88,17 +88,7 @@ def plane_geometry(model, theta, kappa):
     o = first * h
     nn = (np.ceil(zv.max(axis=0) / h) - first + 1).astype(np.int64)
     sd_opt = np.sqrt(np.clip(np.diag(cov3), 0.0, None))
-    pair_sd = np.zeros((3, 3))
-    pair_rho = np.zeros((3, 3))
-    for i in range(3):
-        for k in range(3):
-            if i == k:
-                continue
-            var_y = cov3[k, k] + cov3[i, i] - 2 * cov3[i, k]
-            pair_sd[i, k] = math.sqrt(max(var_y, 0.0))
-            if pair_sd[i, k] > 0 and sd_opt[i] > 0:
-                rho = (cov3[i, k] - cov3[i, i]) / (pair_sd[i, k] * sd_opt[i])
-                pair_rho[i, k] = min(max(rho, -1 + 1e-12), 1 - 1e-12)
+    pair_sd, pair_rho = pair_parameters(cov3, sd_opt)
     P0 = np.asarray(model.P0, dtype=np.float64)
     return dict(
         z_start=np.ascontiguousarray(E.T @ P0), s_start=s0, S=S, E=E, CM=CM, w=w,

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import _lattice
-from ._lattice_chain import MAX_STATES, build_chain
+from ._lattice_chain import build_chain
 from ._plane_chain import TooManyStates, build_plane_chain
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
@@ -145,9 +145,9 @@ class ThresholdProbabilities:
         >>> print(mdft.threshold_probabilities(model, 10.0).summary())  # doctest: +ELLIPSIS
         Threshold stopping, theta = 10 (lattice, ... states)
         option  probability  mean RT (steps)
-             0       0.5000             52.7
-             1       0.5000             52.7
-        undecided    0.0000
+             0       0.5000             27.6
+             1       0.5000             27.6
+        undecided   0.0000
         estimated error: probabilities ..., mean RT ... %
         """
         lines = [f"Threshold stopping, theta = {self.theta:g} ({self.engine}, "
