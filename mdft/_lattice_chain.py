@@ -13,6 +13,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -201,14 +202,20 @@ def build_chain(model, theta, n_cells, variance_correction):
     w = np.ascontiguousarray(model.w, dtype=np.float64)
     args = (S, E, CM, A, w, theta, edges1, edges2, top, levels, index, sd_opt, sd_cell,
             pair_sd, pair_rho, _WIDTH, _lattice._GL_X, _lattice._GL_W)
-    n_chunks = 64
-    counts = _lattice.count_rows(states, *args, n_chunks)
-    indptr = np.zeros(n_states + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    cols = np.empty(indptr[-1], dtype=np.int64)
-    vals = np.empty(indptr[-1])
-    absorbing = np.zeros((n_states, n))
-    _lattice.fill_rows(states, indptr, *args, n_chunks, cols, vals, absorbing)
+    n_chunks = int(min(64, max(1, n_states // 2_000)))  # small chains: no thread overhead
+    threads = numba.get_num_threads()
+    if n_chunks == 1:
+        numba.set_num_threads(1)  # a small chain: waking the thread pool costs more than it saves
+    try:
+        counts = _lattice.count_rows(states, *args, n_chunks)
+        indptr = np.zeros(n_states + 1, dtype=np.int64)
+        np.cumsum(counts, out=indptr[1:])
+        cols = np.empty(indptr[-1], dtype=np.int64)
+        vals = np.empty(indptr[-1])
+        absorbing = np.zeros((n_states, n))
+        _lattice.fill_rows(states, indptr, *args, n_chunks, cols, vals, absorbing)
+    finally:
+        numba.set_num_threads(threads)
     Q = sp.csr_matrix((vals, cols, indptr), shape=(n_states, n_states))
     z0 = E.T @ (np.asarray(model.P0) - s0 / n)
     start_abs = np.zeros(n)
