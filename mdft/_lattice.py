@@ -414,8 +414,9 @@ def propagate(row_ptr, cols, vals, absorb, x, rt_pmf, tol, tail_tol):
     choices. Stops once the transient mass is below ``tol``, or, with
     ``tail_tol > 0``, once for ``_SETTLE`` steps in a row neither the per-step
     decay of the undecided mass nor any option's share of the step's choices
-    changed by more than ``tail_tol`` (relative): the chain is then in its
-    slowest mode and the remaining rows are geometric. Returns
+    changed by more than ``tail_tol`` (relative), and the step's choices
+    decayed at that same rate: the chain is then in its slowest mode and the
+    remaining rows are geometric. Returns
     ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
@@ -456,7 +457,10 @@ def propagate(row_ptr, cols, vals, absorb, x, rt_pmf, tol, tail_tol):
             prev_total = 0.0
             for i in range(n):
                 prev_total += rt_pmf[t - 1, i]
-            calm = prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
+            # in the slowest mode the step's choices decay at the rate of the undecided mass;
+            # before it (mass still on its way to the thresholds) they grow
+            calm = (prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
+                    and abs(total / prev_total - ratio) <= tail_tol * ratio)
             if calm:
                 for i in range(n):
                     if abs(rt_pmf[t, i] / total - rt_pmf[t - 1, i] / prev_total) > tail_tol:

@@ -433,3 +433,15 @@ def test_bad_model():
     started = canonical([A, B]).replace(P0=[6.0, -6.0])
     with pytest.raises(ValueError, match="P0 must lie below theta"):
         threshold_probabilities(started, 5.0)
+
+
+def test_slow_start_is_not_mistaken_for_the_geometric_tail():
+    # A two-option walk that needs hundreds of steps to reach a distant threshold: while the
+    # mass is on its way, the per-step choices are tiny and steady, which an earlier tail
+    # detector took for the slowest mode, returning p_undecided = 1 with a zero error estimate.
+    M = [[3.2911181, 2.62348387, 1.70785203], [3.81386927, 2.47182081, 2.01466959]]
+    w = [0.23881413, 0.40882123, 0.35236464]
+    model = MDFTModel(M, w, phi1=0.02, phi2=0.0533, beta=1.0, sigma2=0.2)
+    res = threshold_probabilities(model, 30.0, max_steps=3000)
+    assert res.p_undecided < 1e-3
+    assert_matches_simulation(res, model, 30.0, 20_000, 8, max_steps=3000)
