@@ -1,23 +1,30 @@
-"""Time and error of mdft.threshold_probabilities as the lattice is refined.
+"""Accuracy and speed of mdft.threshold_probabilities on random models, against simulation.
 
-For the binary canonical choice (A = (1, 3), B = (3, 1), w = (0.6, 0.4)) and the
-three canonical context-effect sets (beta=12, phi1=.022, phi2=.05, w=(.5, .5),
-sigma2=1, theta=17.5) the script prints, for each lattice resolution
-``n_cells``: the number of transient states, the nonzeros of ``Q``, the wall
-time, and the largest error in a choice probability and in a mean response
-time, against the finest lattice (``--ref-cells``) and, for three options,
-against a large Monte Carlo run of mdft.simulate (``--mc`` trials).
+Draws random ternary (and binary) models across the documented range
+(2-3 attributes, M uniform on [0.5, 4], attention from a Dirichlet(4, ..., 4),
+phi1 log-uniform on [0.005, 0.1], phi2 uniform on [0.01, 0.1], beta uniform on
+[1, 15], sigma2 log-uniform on [0.1, 4], theta uniform on [5, 60]), computes the
+threshold-stopping probabilities and mean response times with
+mdft.threshold_probabilities, and compares them with mdft.simulate
+(``--trials`` trials, default 10**6) under the same step limit. Prints one line
+per model and then the median and maximum errors and times.
 
-    python benchmarks/bench_threshold_exact.py            # full table
-    python benchmarks/bench_threshold_exact.py --quick    # coarse resolutions only
+    python benchmarks/bench_threshold_exact.py                        # 20 ternary + 10 binary
+    python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
 
-Timings are wall-clock on whatever else the machine is doing: re-run on a
-quiet machine for figures to quote.
+Errors are the largest difference in a choice probability (or in the
+undecided share) and the largest relative difference in a mean response time
+among options chosen in at least 1000 simulated trials; both include the
+simulation's own error (``se``: its largest standard error). A model the method
+cannot vouch for (ValueError) is counted and listed. Timings are wall-clock
+after compilation, on whatever else the machine is doing: quote them with the
+load average.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import warnings
@@ -28,89 +35,89 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import mdft  # noqa: E402
-from mdft.threshold_exact import _build_chain  # noqa: E402
-
-A, B = (1.0, 3.0), (3.0, 1.0)
-PARAMS = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
-THETA = 17.5
-SETS = {
-    "binary (w=.6,.4)": ([A, B], (0.6, 0.4)),
-    "similarity": ([A, B, (0.9, 3.1)], (0.5, 0.5)),
-    "compromise": ([A, B, (2.0, 2.0)], (0.5, 0.5)),
-    "attraction": ([A, B, (0.5, 2.5)], (0.5, 0.5)),
-}
 
 
-def model_of(options, w):
+def draw_model(rng, n_options):
+    n_attributes = int(rng.integers(2, 4))
+    M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
+    w = rng.dirichlet(np.full(n_attributes, 4.0))
+    params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
+                  phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)),
+                  sigma2=float(np.exp(rng.uniform(np.log(0.1), np.log(4.0)))))
+    theta = float(rng.uniform(5.0, 60.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        return mdft.MDFTModel(options, list(w), **PARAMS)
+        model = mdft.MDFTModel(M, w, **params)
+    return model, theta
 
 
-def timed(model, n_cells, **kw):
+def compare(model, theta, trials, max_steps, seed):
     start = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # coarse lattices warn; tabulated here
-        res = mdft.threshold_probabilities(model, THETA, n_cells=n_cells, **kw)
-    return res, time.perf_counter() - start
+    try:
+        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps)
+    except ValueError as exc:
+        return None, time.perf_counter() - start, str(exc)
+    seconds = time.perf_counter() - start
+    sim = mdft.simulate(model, trials, stopping=mdft.Threshold(theta, max_steps=max_steps),
+                        rng=seed)
+    dp = float(max(np.max(np.abs(res.probabilities - sim.probabilities)),
+                   abs(res.p_undecided - sim.p_undecided)))
+    se = float(np.max(sim.standard_errors))
+    drt = 0.0
+    for i in np.flatnonzero(sim.counts >= 1000):
+        drt = max(drt, abs(res.mean_response_times[i] / sim.mean_response_times[i] - 1.0))
+    return dict(dp=dp, se=se, drt=drt, res=res, sim=sim), seconds, ""
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="coarse resolutions only")
-    parser.add_argument("--ref-cells", type=int, default=14,
-                        help="n_cells of the reference lattice for three options")
-    parser.add_argument("--mc", type=int, default=1_000_000,
-                        help="Monte Carlo trials per three-option set (0 to skip)")
-    parser.add_argument("--no-correction", action="store_true",
-                        help="also tabulate variance_correction=False")
+    parser.add_argument("--ternary", type=int, default=20, help="random three-option models")
+    parser.add_argument("--binary", type=int, default=10, help="random two-option models")
+    parser.add_argument("--trials", type=int, default=1_000_000, help="simulated trials")
+    parser.add_argument("--max-steps", type=int, default=3_000, help="step limit (both)")
+    parser.add_argument("--seed", type=int, default=2026)
     args = parser.parse_args(argv)
-
-    binary_cells = (5, 10, 20, 50, 100) if not args.quick else (5, 10, 20)
-    three_cells = (5, 6, 8, 10, 12) if not args.quick else (5, 6)
-    ref_cells3 = args.ref_cells if not args.quick else 8
-    corrections = (True, False) if args.no_correction else (True,)
-
-    # compile once, outside the timings
-    timed(model_of([A, B], (0.5, 0.5)), 5)
-    timed(model_of(SETS["compromise"][0], (0.5, 0.5)), 5)
-
-    header = (f"{'set':<18} {'corr':>4} {'n_cells':>7} {'states':>8} {'nnz(Q)':>10} "
-              f"{'time s':>7} {'steps':>5} {'max|dp|':>9} {'max|dRT|':>9} {'p (each option)':>26}")
-    for name, (options, w) in SETS.items():
-        model = model_of(options, w)
-        n = model.n_options
-        cells = binary_cells if n == 2 else three_cells
-        ref, ref_time = timed(model, 400 if n == 2 else ref_cells3)
-        print(f"\n{name}: reference lattice n_cells={ref.n_cells} ({ref.n_states} states, "
-              f"{ref_time:.1f} s): p={np.round(ref.probabilities, 4)}, "
-              f"mean RT={np.round(ref.mean_response_times, 2)}")
-        if n == 3 and args.mc > 0:
-            start = time.perf_counter()
-            sim = mdft.simulate(model, args.mc, stopping=mdft.Threshold(THETA, max_steps=10_000),
-                                rng=2026)
-            gap = np.max(np.abs(ref.probabilities - sim.probabilities))
-            print(f"  Monte Carlo, {args.mc} trials ({time.perf_counter() - start:.1f} s): "
-                  f"p={np.round(sim.probabilities, 4)} +- {np.round(sim.standard_errors, 4)}, "
-                  f"mean RT={np.round(sim.mean_response_times, 2)}; "
-                  f"|reference - MC| max {gap:.4f}")
-        print(header)
-        for corr in corrections:
-            for n_cells in cells:
-                res, seconds = timed(model, n_cells, variance_correction=corr)
-                dp = np.max(np.abs(res.probabilities - ref.probabilities))
-                chosen = ref.probabilities > 1e-3
-                drt = np.max(np.abs(res.mean_response_times - ref.mean_response_times)[chosen])
-                nnz = _nnz(model, n_cells, corr)
-                print(f"{name:<18} {'on' if corr else 'off':>4} {n_cells:>7} {res.n_states:>8} "
-                      f"{nnz:>10} {seconds:>7.2f} {res.n_iter:>5} {dp:>9.5f} {drt:>9.4f} "
-                      f"{str(np.round(res.probabilities, 4)):>26}")
-
-
-def _nnz(model, n_cells, corr):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return _build_chain(model, THETA, n_cells, corr).Q.nnz
+    rng = np.random.default_rng(args.seed)
+    print(f"load average {os.getloadavg()[0]:.2f}; {args.trials} simulated trials per model; "
+          f"max_steps={args.max_steps}")
+    # compile outside the timings
+    warm, th = draw_model(np.random.default_rng(0), 3)
+    for m in (warm, draw_model(np.random.default_rng(0), 2)[0]):
+        try:
+            mdft.threshold_probabilities(m, 5.0, max_steps=50)
+        except ValueError:
+            pass
+    for n_options, count in ((3, args.ternary), (2, args.binary)):
+        rows, refused = [], []
+        print(f"\n{n_options} options")
+        print(f"{'#':>3} {'theta':>6} {'sigma2':>6} {'states':>7} {'time s':>7} {'max|dp|':>8} "
+              f"{'se':>7} {'est dp':>8} {'max dRT':>8} {'est dRT':>8}  p (chain) / p (simulation)")
+        for k in range(count):
+            model, theta = draw_model(rng, n_options)
+            out, seconds, why = compare(model, theta, args.trials, args.max_steps,
+                                        args.seed + k)
+            if out is None:
+                refused.append((k, theta, model.sigma2, seconds, why))
+                print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.1f} s: "
+                      f"{why[:110]}")
+                continue
+            res, sim = out["res"], out["sim"]
+            rows.append((out["dp"], out["drt"], seconds, out["se"]))
+            print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {res.n_states:>7} {seconds:7.2f} "
+                  f"{out['dp']:8.4f} {out['se']:7.4f} {res.error_probabilities:8.1e} "
+                  f"{out['drt']:8.4f} {res.error_mean_rt:8.1e}  "
+                  f"{np.round(res.probabilities, 4)} / {np.round(sim.probabilities, 4)}")
+        if rows:
+            a = np.array(rows)
+            print(f"{n_options} options, {len(rows)} models answered, {len(refused)} refused: "
+                  f"|dp| median {np.median(a[:, 0]):.4f} max {a[:, 0].max():.4f} "
+                  f"(simulation se up to {a[:, 3].max():.4f}); "
+                  f"|dRT| median {np.median(a[:, 1]):.4f} max {a[:, 1].max():.4f}; "
+                  f"time median {np.median(a[:, 2]):.2f} s max {a[:, 2].max():.2f} s")
+        if refused:
+            times = [r[3] for r in refused]
+            print(f"refused models took median {np.median(times):.1f} s to refuse")
+    print(f"load average {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -406,28 +406,27 @@ def first_row(z1, z2, s, S, E, CM, A, w, theta, edges1, edges2, top, levels, ind
 
 
 @njit
-def propagate(qt_ptr, qt_idx, qt_val, rt_ptr, rt_idx, rt_val, x, rt_pmf, tol, tail_tol):
+def propagate(row_ptr, cols, vals, absorb, x, rt_pmf, tol, tail_tol):
     """Apply the chain step by step: ``rt_pmf[t] = R^T x``, ``x <- Q^T x``.
 
-    ``x`` (the transient distribution after the first step) is updated in
-    place; ``rt_pmf[0]`` must already hold the first step's choices. Stops
-    once the transient mass is below ``tol``. With ``tail_tol > 0`` it also
-    stops once the chain has settled into its slowest mode: when for
-    ``_SETTLE`` consecutive steps neither the per-step decay of the undecided
-    mass nor any option's share of the choices changed by more than
-    ``tail_tol`` (relative), the remaining rows are filled geometrically.
-    Returns ``(steps, tail_start, mass)``: the steps computed (rows written
-    before the tail), the first extrapolated row (``rt_pmf.shape[0]`` when
-    none) and the undecided mass after all ``rt_pmf.shape[0]`` steps.
+    ``x`` holds the transient distribution after the first step and is
+    updated in place; ``rt_pmf[0]`` must already hold the first step's
+    choices. Stops once the transient mass is below ``tol``, or, with
+    ``tail_tol > 0``, once for ``_SETTLE`` steps in a row neither the per-step
+    decay of the undecided mass nor any option's share of the step's choices
+    changed by more than ``tail_tol`` (relative), and the step's choices
+    decayed at that same rate: the chain is then in its slowest mode and the
+    remaining rows are geometric. Returns
+    ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
     n_steps = rt_pmf.shape[0]
     n = rt_pmf.shape[1]
-    y = np.empty(n_states)
-    steps = 1
+    y = np.zeros(n_states)
     mass = 0.0
     for r in range(n_states):
         mass += x[r]
+    steps = 1
     prev_ratio = -1.0
     settled = 0
     for t in range(1, n_steps):
@@ -435,28 +434,33 @@ def propagate(qt_ptr, qt_idx, qt_val, rt_ptr, rt_idx, rt_val, x, rt_pmf, tol, ta
             return steps, n_steps, mass
         total = 0.0
         for i in range(n):
-            acc = 0.0
-            for q in range(rt_ptr[i], rt_ptr[i + 1]):
-                acc += rt_val[q] * x[rt_idx[q]]
-            rt_pmf[t, i] = acc
-            total += acc
+            rt_pmf[t, i] = 0.0
         for r in range(n_states):
-            acc = 0.0
-            for q in range(qt_ptr[r], qt_ptr[r + 1]):
-                acc += qt_val[q] * x[qt_idx[q]]
-            y[r] = acc
+            xr = x[r]
+            if xr == 0.0:
+                continue
+            for i in range(n):
+                rt_pmf[t, i] += xr * absorb[r, i]
+            for q in range(row_ptr[r], row_ptr[r + 1]):
+                y[cols[q]] += xr * vals[q]
         new_mass = 0.0
         for r in range(n_states):
             x[r] = y[r]
-            new_mass += y[r]
+            y[r] = 0.0
+            new_mass += x[r]
+        for i in range(n):
+            total += rt_pmf[t, i]
         steps = t + 1
-        ratio = new_mass / mass
+        ratio = new_mass / mass if mass > 0.0 else 0.0
         mass = new_mass
         if tail_tol > 0.0 and total > 0.0 and t > 1:
             prev_total = 0.0
             for i in range(n):
                 prev_total += rt_pmf[t - 1, i]
-            calm = prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
+            # in the slowest mode the step's choices decay at the rate of the undecided mass;
+            # before it (mass still on its way to the thresholds) they grow
+            calm = (prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
+                    and abs(total / prev_total - ratio) <= tail_tol * ratio)
             if calm:
                 for i in range(n):
                     if abs(rt_pmf[t, i] / total - rt_pmf[t - 1, i] / prev_total) > tail_tol:
