@@ -542,8 +542,9 @@ def context_effects(
     method : {"monte_carlo", "analytic"}, default "monte_carlo"
         ``"analytic"`` uses :func:`mdft.choice_probabilities` (the Gaussian
         closed form) for fixed time and :func:`mdft.threshold_probabilities`
-        for threshold stopping (two or three options; its lattice computation
-        can take much longer than a Monte Carlo run); no sampling error then.
+        for threshold stopping (two or three options; for three it can take
+        minutes, or refuse a model whose error it cannot bound, see
+        ``docs/threshold_exact.md``); no sampling error then.
     criterion : float, default 3.0
         The effect counts as shown when it lies in the expected direction by
         more than ``criterion`` standard errors (a one-sided test).
