@@ -114,6 +114,28 @@ class Episode:
     terminated: bool
     truncated: bool
 
+    def __repr__(self) -> str:
+        return (f"Episode(n_steps={self.n_steps}, total_reward={self.total_reward:.6g}, "
+                f"terminated={self.terminated}, truncated={self.truncated})")
+
+    def summary(self) -> str:
+        """The episode's length, return and ending, and its path of states, as text.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> print(Episode(np.array([0, 1, 2]), np.array([1, 1]), np.array([-1.0, -1.0]), -2.0,
+        ...               True, False).summary())
+        2 steps, total reward -2, terminated
+        states: 0 -> 1 -> 2
+        """
+        ending = ("terminated" if self.terminated else "truncated" if self.truncated
+                  else "still running")
+        path = " -> ".join(str(int(s)) for s in self.states[:21])
+        more = f" -> ... ({self.states.size - 21} more)" if self.states.size > 21 else ""
+        return (f"{self.n_steps} steps, total reward {self.total_reward:g}, {ending}\n"
+                f"states: {path}{more}")
+
     @property
     def n_steps(self) -> int:
         """Number of actions taken."""

@@ -466,6 +466,36 @@ class MDFTvsWAInstance:
     exact_fit_probabilities: np.ndarray
     exact_fit_js_divergence: float
 
+    def __repr__(self) -> str:
+        return (f"MDFTvsWAInstance(seed={self.seed}, n_actions={self.wa_probabilities.size}, "
+                f"js_divergence={self.js_divergence:.6g}, "
+                f"exact_fit_js_divergence={self.exact_fit_js_divergence:.6g})")
+
+    def summary(self) -> str:
+        """The WA and fitted MDFT distributions side by side, with both divergences.
+
+        Examples
+        --------
+        >>> from orchestration import mdft_vs_wa_instance
+        >>> inst = mdft_vs_wa_instance(3, n_actions=3, n_choices=30, n_steps=10)
+        >>> print(inst.summary())  # doctest: +ELLIPSIS
+        MDFT vs WA, seed 3: WA weights (...), MDFT fitted to 30 choices (...)
+        action        WA    choices   MDFT fit  MDFT exact
+        ...
+        JS divergence (nats): ... fitted to the choices, ... best fit to the WA distribution
+        """
+        rows = [f"{'action':<8s} {'WA':>8s} {'choices':>10s} {'MDFT fit':>10s} {'MDFT exact':>11s}"]
+        rows += [f"{a:<8d} {p:8.4f} {int(c):10d} {q:10.4f} {r:11.4f}"
+                 for a, (p, c, q, r) in enumerate(zip(self.wa_probabilities, self.counts,
+                                                       self.mdft_probabilities,
+                                                       self.exact_fit_probabilities))]
+        w = ", ".join(f"{v:.3f}" for v in self.wa_weights)
+        f = ", ".join(f"{v:.3f}" for v in self.fitted_weights)
+        return (f"MDFT vs WA, seed {self.seed}: WA weights ({w}), MDFT fitted to "
+                f"{int(self.counts.sum())} choices ({f})\n" + "\n".join(rows) + "\n"
+                f"JS divergence (nats): {self.js_divergence:.4f} fitted to the choices, "
+                f"{self.exact_fit_js_divergence:.4f} best fit to the WA distribution")
+
 
 def _mdft_probabilities(M, w_n, settings, n_steps):
     with warnings.catch_warnings():
@@ -593,6 +623,28 @@ class MDFTvsWAResult:
     def n_instances(self) -> int:
         """Number of instances."""
         return len(self.instances)
+
+    def __repr__(self) -> str:
+        return (f"MDFTvsWAResult(n_instances={self.n_instances}, mean_js={self.mean_js:.6g}, "
+                f"se_js={self.se_js:.6g}, mean_exact_js={self.mean_exact_js:.6g}, "
+                f"se_exact_js={self.se_exact_js:.6g})")
+
+    def summary(self) -> str:
+        """Mean JS divergences with their standard errors, as a text table.
+
+        Examples
+        --------
+        >>> from orchestration import mdft_vs_wa
+        >>> print(mdft_vs_wa(2, rng=0, n_actions=3, n_choices=30, n_steps=10).summary())
+        ... # doctest: +ELLIPSIS
+        MDFT vs WA over 2 instances: mean JS divergence (nats)
+        MDFT fitted to sampled choices              ... +- ...
+        MDFT best fit to the exact WA distribution  ... +- ...
+        """
+        return (f"MDFT vs WA over {self.n_instances} instances: mean JS divergence (nats)\n"
+                f"{'MDFT fitted to sampled choices':<43s} {self.mean_js:.4f} +- {self.se_js:.4f}\n"
+                f"{'MDFT best fit to the exact WA distribution':<43s} {self.mean_exact_js:.4f} "
+                f"+- {self.se_exact_js:.4f}")
 
 
 def _mean_se(x):
