@@ -91,7 +91,7 @@ def _steps():
             decide(np.array([M3] * 2_000), w, n_steps=100, rng=0, **canon))),
         ("threshold_probabilities", lambda: (
             threshold_probabilities(m2, 3.0, max_steps=20, n_cells=5),
-            threshold_probabilities(m3, 3.0, max_steps=20, n_cells=5))),
+            threshold_probabilities(m3, 3.0, max_steps=20))),
     ]
 
 

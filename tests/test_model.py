@@ -104,7 +104,7 @@ def test_growth_warning_follows_the_documented_rule(rho, n_steps):
         warnings.simplefilter("always")
         m = MDFTModel.from_matrices([A, B], [0.5, 0.5], S=np.eye(2) * rho, sigma2=0.0)
     assert bool(caught) == (rho**REFERENCE_STEPS > GROWTH_LIMIT)
-    if n_steps * np.log(max(rho, 1.0)) > 600:
+    if 2 * n_steps * np.log(max(rho, 1.0)) > 600:  # the covariance grows like rho^(2T)
         return
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
