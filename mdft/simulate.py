@@ -47,6 +47,11 @@ _DECISIONS_PER_CHUNK = 256
 #: the result.
 _PARALLEL_WORK = 200_000
 
+#: The same for :func:`decide`, whose steps cost far more (the feedback product and the
+#: noise of every option at each step): a few hundred microseconds of work already pay
+#: for waking the pool.
+_PARALLEL_DECISION_WORK = 10_000
+
 #: Largest attention table (n_steps * n_attributes * n_options doubles) the
 #: fixed-time shortcut may build; past it the step-by-step kernel is used.
 _MAX_TABLE_SIZE = 4_000_000
@@ -606,7 +611,7 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
     out = np.empty(n_decisions, dtype=np.int64)
     args = (batch, cuts, phi1, phi2, beta, math.sqrt(sigma2), n_steps)
     with np.errstate(over="ignore"):
-        if n_decisions * n_steps >= _PARALLEL_WORK:
+        if n_decisions * n_steps >= _PARALLEL_DECISION_WORK:
             _kernels.decide_chunks(states, bounds, *args, out)
         else:
             for c in _nonempty_chunks(bounds):
