@@ -15,12 +15,11 @@ Run: ``python benchmarks/bench_reproduce.py [--quick] [--workers 2] [--out DIR] 
 
 import argparse
 import os
-import resource
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from _timing import timed_run
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["orchestrators", "mdft-vs-wa", "hard-constraints", "soft-constraints", "transfer"]
@@ -40,14 +39,7 @@ def main():
     for name in args.names:
         cmd = [sys.executable, "-m", "orchestration", "reproduce", name, "--out", str(out / name),
                "--workers", str(args.workers), "--quiet"] + (["--quick"] if args.quick else [])
-        t0 = time.perf_counter()
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        if proc.returncode != 0:
-            sys.exit(f"{name} failed:\n{proc.stderr}")
+        proc, wall, cpu = timed_run(cmd, cwd=ROOT, env=env, label=name)
         rows.append((name, wall, cpu, os.getloadavg()[0]))
         print(f"{name:18s} wall {wall:8.1f} s   CPU {cpu:8.1f} s   "
               f"(1-min load average after: {rows[-1][3]:.1f})", flush=True)

@@ -17,12 +17,11 @@ Run: ``python benchmarks/bench_tour.py [--quick] [--out DIR]``
 import argparse
 import os
 import re
-import resource
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from _timing import timed_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,14 +30,7 @@ def run(label, out, cache, quick):
     env = dict(os.environ, MPLBACKEND="Agg", NUMBA_CACHE_DIR=str(cache))
     cmd = [sys.executable, "-m", "orchestration", "tour", "--out", str(out), "--seed", "0"]
     cmd += ["--quick"] if quick else []
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    if proc.returncode != 0:
-        sys.exit(f"{label} failed:\n{proc.stderr}")
+    proc, wall, cpu = timed_run(cmd, cwd=ROOT, env=env, label=label)
     steps = re.findall(r"^\[\d+/\d+\] (.*) \.\.\.\n\s+done in ([\d.]+) s", proc.stderr, re.M)
     print(f"{label}: wall {wall:.1f} s, CPU {cpu:.1f} s, 1-min load average after "
           f"{os.getloadavg()[0]:.1f}")
