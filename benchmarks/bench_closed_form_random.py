@@ -1,18 +1,25 @@
-"""Error of the Gaussian fixed-time closed form on random models (not only the canonical sets).
+"""Error of the normal fixed-time closed form on random models, and how well it is estimated.
 
 Usage::
 
-    python benchmarks/bench_closed_form_random.py                  # 60 random models
-    python benchmarks/bench_closed_form_random.py --models 20 --mc 200000 --sequences 50000
+    python benchmarks/bench_closed_form_random.py --options 2,3 --models 200
+    python benchmarks/bench_closed_form_random.py --options 4-8 --models 60 --mc 400000
 
-Each random model has 3 options on 2 or 3 attributes (evaluations uniform on [0, 5]), random
-attention on the simplex, phi1 in [0.005, 0.1], phi2 in [0.01, 0.2], beta in [1, 15], sigma2
-in [0.1, 4], and a deliberation time T in [5, 200]. For each model the normal approximation
-(``mdft.choice_probabilities``) is compared with the exact mixture
-(``mdft.mixture_choice_probabilities``, its own standard error) and with plain simulation
-(``mdft.simulate``, ``--mc`` trials). Reported: the distribution over models of the largest
-absolute error per model against the exact mixture and the largest |z| against simulation,
-and the worst models with what distinguishes them (T, phi2, sigma2, the smallest probability).
+Each random model: ``n`` options drawn from ``--options`` on 1 to 4 attributes (evaluations
+uniform on [0, 5]), random attention on the simplex, ``phi1`` in [0.005, 0.1], ``phi2`` in
+[0, 0.5] (the fit's upper bound), ``beta`` in [0, 15], ``sigma2`` log-uniform in
+[0.01, 4], ``T`` log-uniform in [1, 1000]. For each model the normal approximation
+(``choice_probabilities(..., method="normal")``) and its error estimate (what
+``method="auto"`` compares with ``tol / 2``) are compared with the exact law:
+
+* 2 or 3 options: enumeration of all attention sequences when there are at most 4,096,
+  else the exact mixture (``mixture_choice_probabilities``, ``--sequences``);
+* 4 or more options: simulation (``mdft.simulate``, ``--mc`` trials); the error is then
+  known only up to the simulation's standard error, reported as ``|err| - 2 SE``.
+
+Reported: the error of the normal approximation, the estimate against it, the largest
+error among the models the estimate accepts at a given tolerance (the guarantee of
+``method="auto"``), and the time per call of both methods.
 """
 
 from __future__ import annotations
@@ -29,60 +36,129 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mdft  # noqa: E402
+from mdft.closed_form import (_ENUMERATE_MAX, _SAFETY, _enumerated_probabilities,  # noqa: E402
+                              _n_sequences, _normal_error)
 
 
-def random_model(rng):
-    J = int(rng.integers(2, 4))
-    M = rng.uniform(0.0, 5.0, size=(3, J))
+def parse_options(text):
+    if "-" in text:
+        lo, hi = (int(v) for v in text.split("-"))
+        return list(range(lo, hi + 1))
+    return [int(v) for v in text.split(",")]
+
+
+def random_model(rng, choices):
+    n = int(rng.choice(choices))
+    J = int(rng.integers(1, 5))
+    M = rng.uniform(0.0, 5.0, size=(n, J))
     w = rng.dirichlet(np.ones(J))
-    params = dict(phi1=rng.uniform(0.005, 0.1), phi2=rng.uniform(0.01, 0.2),
-                  beta=rng.uniform(1.0, 15.0), sigma2=rng.uniform(0.1, 4.0))
-    T = int(rng.integers(5, 201))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        return mdft.MDFTModel(M, w, **params), T, params
+    params = dict(phi1=rng.uniform(0.005, 0.1), phi2=rng.uniform(0.0, 0.5),
+                  beta=rng.uniform(0.0, 15.0),
+                  sigma2=float(np.exp(rng.uniform(np.log(0.01), np.log(4.0)))))
+    T = int(np.exp(rng.uniform(0.0, np.log(1000.0))))
+    return mdft.MDFTModel(M, w, **params), T, params
+
+
+def auto(model, T, tol):
+    try:
+        return mdft.choice_probabilities(model, T, tol=tol)
+    except ValueError:
+        return None  # no exact method applies: it says so
+
+
+def median_ms(fn, repeats=5):
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times))
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", type=int, default=60)
-    ap.add_argument("--mc", type=int, default=200_000)
+    ap.add_argument("--options", default="2,3", help="e.g. 2,3 or 4-8")
+    ap.add_argument("--models", type=int, default=200)
+    ap.add_argument("--mc", type=int, default=400_000)
     ap.add_argument("--sequences", type=int, default=50_000)
+    ap.add_argument("--tol", type=float, default=mdft.closed_form.DEFAULT_TOL)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args(argv)
+    choices = parse_options(args.options)
     rng = np.random.default_rng(args.seed)
     rows = []
     t0 = time.perf_counter()
+    warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
     for i in range(args.models):
-        model, T, params = random_model(rng)
-        normal = mdft.choice_probabilities(model, T)
-        mix = mdft.mixture_choice_probabilities(model, T, n_sequences=args.sequences, rng=i)
-        sim = mdft.simulate(model, args.mc, stopping=mdft.FixedTime(T), rng=i)
-        err_mix = np.abs(normal - mix.probabilities)
-        se = np.sqrt(np.maximum(normal * (1 - normal), 1e-12) / args.mc)
-        z = np.abs(normal - sim.probabilities) / se
-        rows.append(dict(err=err_mix.max(), se_mix=mix.standard_errors.max(), z=z.max(),
-                         err_sim=np.abs(normal - sim.probabilities).max(), T=T,
-                         J=model.n_attributes, p_min=normal.min(), **params))
-    el = time.perf_counter() - t0
+        model, T, params = random_model(rng, choices)
+        try:
+            mean, cov = mdft.preference_moments(model, T)
+        except ValueError:
+            continue  # preferences overflow: no closed form at all
+        normal = mdft.choice_probabilities(model, T, method="normal")
+        est = _normal_error(model, T, mean, cov, normal).max()
+        n = model.n_options
+        if n <= 3 and _n_sequences(model, T) <= _ENUMERATE_MAX:
+            exact, se, ref = _enumerated_probabilities(model, T), 0.0, "enum"
+        elif n <= 3:
+            mix = mdft.mixture_choice_probabilities(model, T, n_sequences=args.sequences, rng=i)
+            exact, se, ref = mix.probabilities, mix.standard_errors, "mix"
+        else:
+            sim = mdft.simulate(model, args.mc, stopping=mdft.FixedTime(T), rng=i)
+            exact, ref = sim.probabilities, "sim"
+            se = np.sqrt(np.maximum(exact * (1 - exact), 1e-12) / args.mc)
+        diff = np.abs(normal - exact)
+        err = float(diff.max())
+        err_low = float(np.max(diff - 2 * se))  # the error is at least this (2 SE)
+        row = dict(n=n, T=T, J=model.n_attributes, est=est, err=err, err_low=err_low,
+                   se=float(np.max(se)), ref=ref, **params)
+        if not args.no_timing:
+            row["t_normal"] = median_ms(lambda: mdft.choice_probabilities(model, T,
+                                                                          method="normal"))
+            row["t_auto"] = median_ms(lambda: auto(model, T, args.tol),
+                                      repeats=5 if est <= args.tol / _SAFETY else 1)
+        rows.append(row)
+    elapsed = time.perf_counter() - t0
     err = np.array([r["err"] for r in rows])
-    z = np.array([r["z"] for r in rows])
-    err_sim = np.array([r["err_sim"] for r in rows])
-    print(f"{args.models} random 3-option models, {args.mc} simulated trials and "
-          f"{args.sequences} attention sequences each ({el:.0f} s)")
-    q = lambda a, f: f"median {np.median(a):{f}}, 90% {np.quantile(a, 0.9):{f}}, max {a.max():{f}}"  # noqa: E731
-    print(f"largest |normal - exact mixture| per model: {q(err, '.4f')}")
-    print(f"  (mixture standard error: up to {max(r['se_mix'] for r in rows):.4f})")
-    print(f"largest |normal - simulation| per model:    {q(err_sim, '.4f')}")
-    print(f"largest |z| against simulation per model:    {q(z, '.1f')}")
-    print(f"models beyond 3 SE of simulation: {np.mean(z > 3):.0%}; error > 0.002 against the "
-          f"mixture: {np.mean(err > 0.002):.0%}")
-    print("worst models:")
-    print(f"{'err':>7s} {'|z|':>5s} {'T':>4s} {'J':>2s} {'phi1':>6s} {'phi2':>6s} {'beta':>5s} "
-          f"{'sigma2':>6s} {'p_min':>7s}")
-    for r in sorted(rows, key=lambda r: -r["err"])[:8]:
-        print(f"{r['err']:7.4f} {r['z']:5.1f} {r['T']:4d} {r['J']:2d} {r['phi1']:6.3f} "
-              f"{r['phi2']:6.3f} {r['beta']:5.1f} {r['sigma2']:6.2f} {r['p_min']:7.4f}")
+    low = np.array([r["err_low"] for r in rows])
+    est = np.array([r["est"] for r in rows])
+    print(f"{len(rows)} random models with {args.options} options ({elapsed:.0f} s); references: "
+          + ", ".join(f"{k} {sum(r['ref'] == k for r in rows)}" for k in ("enum", "mix", "sim")))
+    q = lambda a: f"median {np.median(a):.4f}, 90% {np.quantile(a, 0.9):.4f}, max {a.max():.4f}"  # noqa: E731
+    print(f"largest |normal - exact| per model:      {q(err)}")
+    print(f"  (reference standard error up to {max(r['se'] for r in rows):.4f})")
+    print(f"error estimate (largest per model):      {q(est)}")
+    big = err > 5e-4
+    if big.any():
+        ratio = est[big] / err[big]
+        print(f"estimate / error where error > 5e-4 ({big.sum()} models): min {ratio.min():.2f}, "
+              f"5% {np.quantile(ratio, 0.05):.2f}, median {np.median(ratio):.2f}, "
+              f"95% {np.quantile(ratio, 0.95):.2f}")
+    print("accepted by the estimate (est <= c) -> largest error among them "
+          "(and its lower bound |err| - 2 SE):")
+    for c in (0.0005, 0.001, 0.0025, 0.005):
+        sel = est <= c
+        if sel.any():
+            print(f"  c = {c:<6g}: {sel.sum():3d} models ({sel.mean():.0%}), largest error "
+                  f"{err[sel].max():.4f} (>= {max(low[sel].max(), 0):.4f})")
+    acc = est <= args.tol / _SAFETY
+    print(f"method='auto' with tol={args.tol:g} keeps the normal answer for {acc.mean():.0%} of "
+          f"the models")
+    if not args.no_timing:
+        tn = np.array([r["t_normal"] for r in rows])
+        ta = np.array([r["t_auto"] for r in rows])
+        print(f"time per call where accepted: normal median {np.median(tn[acc]):.2f} ms, auto "
+              f"median {np.median(ta[acc]):.2f} ms (max {ta[acc].max():.1f} ms)")
+        if (~acc).any():
+            print(f"time per call where auto falls back (or raises): median "
+                  f"{np.median(ta[~acc]):.1f} ms, max {ta[~acc].max():.0f} ms")
+    print("models with the largest error-to-estimate ratio:")
+    print(f"{'err':>7s} {'est':>7s} {'ref':>4s} {'n':>2s} {'T':>4s} {'J':>2s} {'phi2':>6s} "
+          f"{'sigma2':>6s}")
+    for r in sorted(rows, key=lambda r: -(r["err_low"] / max(r["est"], 1e-6)))[:6]:
+        print(f"{r['err']:7.4f} {r['est']:7.4f} {r['ref']:>4s} {r['n']:2d} {r['T']:4d} "
+              f"{r['J']:2d} {r['phi2']:6.3f} {r['sigma2']:6.3f}")
 
 
 if __name__ == "__main__":

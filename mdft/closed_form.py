@@ -42,8 +42,9 @@ from scipy import special
 from ._typing import SeedLike
 from ._export import builtin, fmt, labels_for, table, to_json
 from ._repr import compact_repr
-from ._validation import MAX_STEPS, as_count
-from .model import MDFTModel, warn_if_growing
+from ._edgeworth import attention_cumulants, error_estimate
+from ._validation import MAX_STEPS, as_count, as_scalar
+from .model import MDFTModel, UnstableFeedbackWarning, warn_if_growing
 
 __all__ = [
     "ClosedFormAccuracyWarning",
@@ -68,15 +69,31 @@ _QMC_SEED = 20011
 #: Four or more options: an option whose best single comparison is won with probability
 #: below this gets that bound as its probability instead of a quasi-Monte Carlo integral.
 _NEGLIGIBLE = 1e-13
+#: ``method="auto"``: default tolerance on each probability, and the factor by which the
+#: error estimate must stay below it for the normal approximation to be returned.
+DEFAULT_TOL = 0.002
+_SAFETY = 2.0
+#: Exact fallbacks: enumerate attention sequences up to this many; otherwise the exact
+#: mixture with a fixed seed, from this many sequences up to the cap, and at most this
+#: many sequence-steps of work.
+_ENUMERATE_MAX = 4096
+_MIXTURE_SEED = 20_011
+_MIXTURE_START = 20_000
+_MIXTURE_MAX = 400_000
+_MIXTURE_WORK = 40_000_000
+_METHODS = ("auto", "normal")
 
 
 class ClosedFormAccuracyWarning(RuntimeWarning):
-    """The closed-form probabilities did not sum to one within the expected tolerance.
+    """No longer emitted; kept so that code which filters it keeps working.
 
-    They are renormalised, but the discrepancy is larger than the numerical error of the
-    method, which points at an ill-conditioned problem (for example preferences that have
-    grown to huge values over a very long deliberation with ``rho(S) > 1``).
+    Closed-form probabilities that do not sum to one within the method's tolerance now
+    raise a ``ValueError`` (or, with ``method="auto"``, fall back to an exact method).
     """
+
+
+class _OrthantSumError(ValueError):
+    """The orthant probabilities miss a sum of one by more than the method's error."""
 
 
 def _check_model(model) -> None:
@@ -174,8 +191,9 @@ def _moments(S, mu, phi, P0, n_steps):
     return mean, cov
 
 
-def choice_probabilities(model: MDFTModel, n_steps: int) -> np.ndarray:
-    """Fixed-time choice probabilities from the normal approximation of ``P(T)``.
+def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto",
+                         tol: float = DEFAULT_TOL) -> np.ndarray:
+    """Fixed-time choice probabilities, from the normal approximation where it is accurate.
 
     Parameters
     ----------
@@ -183,32 +201,50 @@ def choice_probabilities(model: MDFTModel, n_steps: int) -> np.ndarray:
         The model.
     n_steps : int
         Deliberation time ``T``, at least 1; the option with the largest ``P(T)`` is chosen.
+    method : {"auto", "normal"}, default "auto"
+        ``"normal"``: the normal approximation of ``P(T)`` (Roe et al. 2001), always;
+        deterministic and smooth in the parameters (what :func:`mdft.fit` uses).
+        ``"auto"``: the normal approximation when its estimated error is at most
+        ``tol / 2`` for every option, otherwise an exact method (below), otherwise a
+        ``ValueError``.
+    tol : float, default 0.002
+        ``method="auto"``: the absolute error allowed on each probability, in (0, 0.5].
 
     Returns
     -------
     probabilities : ndarray, shape (n_options,)
-        ``Pr(L_i P(T) > 0)`` for ``P(T) ~ N(xi(T), Omega(T))``
-        (:func:`preference_moments`); they sum to one.
+        They sum to one.
 
-    Warns
-    -----
-    ClosedFormAccuracyWarning
-        If the probabilities miss a sum of one by more than the method's numerical
-        tolerance (they are renormalised in any case).
+    Raises
+    ------
+    ValueError
+        With ``method="auto"``, if the normal approximation may be off by more than ``tol``
+        and no exact method applies at an affordable cost (four or more options, or
+        ``sigma2 = 0``, with a deliberation too long to enumerate). With either method, if
+        the orthant probabilities do not sum to one within their numerical error, or the
+        moments overflow.
 
     Notes
     -----
-    The noise ``eps(t)`` is Gaussian but the attention process is not, so the
-    distribution of ``P(T)`` is a mixture of normals; the normal with the same two moments
-    is the classical approximation (Roe et al. 2001). ``docs/closed_form.md`` reports how
-    close it is to Monte Carlo on the canonical option sets.
+    The noise ``eps(t)`` is Gaussian but the attention process is not, so ``P(T)`` is a
+    mixture of normals; the normal with the same two moments, ``N(xi(T), Omega(T))``
+    (:func:`preference_moments`), is the classical approximation. Option ``i`` is chosen
+    with probability ``Pr(L_i P(T) > 0)``: the normal CDF for two options, Owen's T
+    function for three (both exact for the normal distribution), Genz's separation of
+    variables on a fixed set of scrambled Sobol points for four or more (deterministic,
+    absolute error about 1e-5). Differences with zero variance (as with ``sigma2 = 0``)
+    are decided by the sign of their mean; options equal with probability one split
+    their probability equally.
 
-    Two options use the normal CDF and three options Owen's T function, both exact for
-    the normal distribution. Four or more options use Genz's separation of variables with
-    a fixed set of scrambled Sobol points (deterministic, smooth in the parameters,
-    absolute error about 1e-5). Differences of preference with zero variance (as with
-    ``sigma2 = 0``) are decided exactly by the sign of their mean, and options whose
-    preferences coincide with probability one split their probability equally.
+    ``method="auto"`` estimates the error of the approximation from the exact third and
+    fourth cumulants of the attention sum (the first Edgeworth terms of each option's
+    orthant probability; for four or more options a Cauchy-Schwarz bound on them) and
+    falls back, when that estimate exceeds ``tol / 2``, to the exact law of ``P(T)``:
+    enumeration of all attention sequences when there are at most 4,096 of them (two or
+    three options, or any number without noise), else the exact mixture
+    (:func:`mixture_choice_probabilities`, two or three options, ``sigma2 > 0``) with a
+    fixed seed and enough sequences for three standard errors within ``tol``.
+    ``docs/closed_form.md`` gives the accuracy of the estimate on random models.
 
     Examples
     --------
@@ -220,11 +256,148 @@ def choice_probabilities(model: MDFTModel, n_steps: int) -> np.ndarray:
     [0.285, 0.285, 0.43]
     >>> round(float(p.sum()), 12)
     1.0
+
+    At ``T = 3`` the normal approximation is not good enough for ``tol = 0.002``: the
+    eight attention sequences are enumerated instead.
+
+    >>> mdft.choice_probabilities(model, 3).round(4).tolist()
+    [0.3736, 0.3736, 0.2527]
+    >>> mdft.choice_probabilities(model, 3, method="normal").round(4).tolist()
+    [0.3715, 0.3715, 0.2571]
     """
     _check_model(model)
     n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
-    mean, cov = preference_moments(model, n_steps)
-    return _probabilities_from_moments(mean, cov)
+    if not isinstance(method, str) or method not in _METHODS:
+        raise ValueError(f"method must be 'auto' or 'normal' (got {method!r})")
+    tol = as_scalar("tol", tol, low=0.0, high=0.5, low_inclusive=False)
+    with warnings.catch_warnings():
+        # warn once, below, with the caller's line
+        warnings.simplefilter("ignore", UnstableFeedbackWarning)
+        mean, cov = preference_moments(model, n_steps)
+    warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
+    try:
+        p = _probabilities_from_moments(mean, cov)
+    except _OrthantSumError as exc:
+        if method == "normal":
+            raise ValueError(f"{exc}; use mdft.simulate for this model") from None
+        p, reason = None, str(exc)
+    if method == "normal":
+        return p
+    if p is not None:
+        est = float(_normal_error(model, n_steps, mean, cov, p, tol / _SAFETY).max())
+        if est <= tol / _SAFETY:
+            return p
+        reason = (f"the normal approximation's estimated error is {est:.2g}, above "
+                  f"tol/{_SAFETY:g} = {tol / _SAFETY:.2g}")
+    exact, why_not = _exact_probabilities(model, n_steps, tol)
+    if exact is not None:
+        return exact
+    raise ValueError(
+        f"choice_probabilities cannot vouch for its answer: {reason}, for a model with "
+        f"{model.n_options} options, {model.n_attributes} attributes, sigma2="
+        f"{model.sigma2:g}, rho(S)={model.spectral_radius:.4g} and n_steps={n_steps}, and "
+        f"{why_not}. Use mdft.simulate (Monte Carlo with standard errors), a larger tol, "
+        "or method='normal' to accept the normal approximation knowingly"
+    )
+
+
+def _normal_error(model, n_steps, mean, cov, p, enough=0.0):
+    """Per-option error estimate of the normal approximation (see :mod:`mdft._edgeworth`)."""
+    S = np.asarray(model.S)
+    CM = np.asarray(model.C) @ np.asarray(model.M)
+    with np.errstate(over="ignore", invalid="ignore"):
+        k3, k4 = attention_cumulants(S, CM, np.asarray(model.w), n_steps)
+    if not (np.all(np.isfinite(k3)) and np.all(np.isfinite(k4))):
+        return np.full(p.shape, np.inf)
+    return error_estimate(mean, cov, k3, k4, p, enough)
+
+
+def _n_sequences(model, n_steps):
+    """Number of attention sequences with positive probability, capped above the limit."""
+    J = int(np.count_nonzero(np.asarray(model.w) > 0))
+    if J <= 1:
+        return 1
+    return J**n_steps if n_steps * np.log(J) <= np.log(_ENUMERATE_MAX) + 1e-9 else _ENUMERATE_MAX + 1
+
+
+def _exact_probabilities(model, n_steps, tol):
+    """``(probabilities, None)`` from an exact method, or ``(None, why not)``."""
+    n = model.n_options
+    if _n_sequences(model, n_steps) <= _ENUMERATE_MAX and (n <= 3 or model.sigma2 == 0):
+        return _enumerated_probabilities(model, n_steps), None
+    if n > 3:
+        return None, (f"no exact method applies (the exact mixture handles 2 or 3 options, "
+                      f"and the {model.n_attributes}**{n_steps} attention sequences are too "
+                      f"many to enumerate)")
+    if model.sigma2 == 0:
+        return None, ("no exact method applies (without noise the exact mixture does not "
+                      "exist, and the attention sequences are too many to enumerate)")
+    n_seq = _MIXTURE_START
+    for _ in range(2):
+        if n_seq * n_steps > _MIXTURE_WORK:
+            return None, (f"the exact mixture would need {n_seq:,} sequences of {n_steps} "
+                          f"steps, more than the {_MIXTURE_WORK:,} sequence-steps allowed")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnstableFeedbackWarning)
+            res = mixture_choice_probabilities(model, n_steps, n_sequences=n_seq,
+                                               rng=_MIXTURE_SEED)
+        se = float(res.standard_errors.max())
+        if 3.0 * se <= tol:
+            return np.array(res.probabilities), None
+        n_seq = int(np.ceil(1.2 * n_seq * (3.0 * se / tol) ** 2))
+        if n_seq > _MIXTURE_MAX:
+            break
+    return None, (f"the exact mixture cannot reach three standard errors within tol with "
+                  f"at most {_MIXTURE_MAX:,} sequences")
+
+
+def _enumerated_probabilities(model, n_steps):
+    """Exact fixed-time probabilities by enumerating every attention sequence.
+
+    Conditionally on the sequence, ``P(T)`` is normal (``sigma2 > 0``: exact orthant, two
+    or three options) or a point (``sigma2 = 0``: the argmax, ties split equally). The
+    caller keeps the number of sequences small.
+    """
+    n = model.n_options
+    w = np.asarray(model.w)
+    keep = w > 0
+    S = np.asarray(model.S)
+    CM = (np.asarray(model.C) @ np.asarray(model.M))[:, keep]
+    w = w[keep]
+    A = np.zeros((1, n))
+    weight = np.ones(1)
+    for _ in range(n_steps):
+        A = ((A @ S.T)[:, None, :] + CM.T[None, :, :]).reshape(-1, n)
+        weight = (weight[:, None] * w[None, :]).ravel()
+    C = np.asarray(model.C)
+    base, noise = _moments(S, np.zeros(n), model.sigma2 * (C @ C.T), np.asarray(model.P0),
+                           n_steps)
+    means = base + A
+    if model.sigma2 > 0:
+        f = _conditional_orthants(means, noise)
+    else:
+        top = means.max(axis=1, keepdims=True)
+        tie = _TIE_RTOL * max(float(np.abs(means).max()), 1e-300)
+        f = (means >= top - tie).astype(float)
+        f /= f.sum(axis=1, keepdims=True)
+    p = weight @ f
+    return p / p.sum()
+
+
+def _conditional_orthants(means, noise):
+    """``Pr(choose i | mean)`` for ``N(mean, noise)``, many means (N, n), n = 2 or 3."""
+    n = means.shape[1]
+    f = np.empty(means.shape)
+    for i in range(n):
+        L = -np.eye(n)[np.arange(n) != i]
+        L[:, i] = 1.0
+        mm = means @ L.T
+        cc = L @ noise @ L.T
+        if n == 2:
+            f[:, i] = special.ndtr(mm[:, 0] / np.sqrt(cc[0, 0]))
+        else:
+            f[:, i] = _bivariate_orthant_many(mm, cc)
+    return f
 
 
 def _probabilities_from_moments(mean, cov):
@@ -288,11 +461,9 @@ def _probabilities_from_moments(mean, cov):
     total = p_class.sum()
     tol = _SUM_TOL_EXACT if k <= 3 else max(_SUM_TOL_QMC, 10.0 * err)
     if not np.isfinite(total) or abs(total - 1.0) > tol:
-        warnings.warn(
-            f"closed-form choice probabilities sum to {total:.10g} instead of 1 (tolerance "
-            f"{tol:.2g}); they have been renormalised",
-            ClosedFormAccuracyWarning,
-            stacklevel=3,
+        raise _OrthantSumError(
+            f"the closed-form choice probabilities sum to {total:.10g} instead of 1 "
+            f"(tolerance {tol:.2g}): the orthant integrals are not accurate for these moments"
         )
     p_class = np.clip(p_class, 0.0, None)
     p_class /= p_class.sum()
@@ -527,9 +698,11 @@ def _hotaling_feedback(M, phi1, phi2, beta):
 
 
 def _fixed_time_probabilities(M, w, phi1, phi2, beta, sigma2, n_steps):
-    """Closed-form probabilities from already validated arrays (used by :mod:`mdft.fit`).
+    """Normal-approximation probabilities from validated arrays (used by :mod:`mdft.fit`).
 
-    Returns ``None`` where the moments overflow.
+    The likelihood of a fit is that of the normal approximation (``method="normal"``):
+    deterministic and smooth in the parameters. Returns ``None`` where the moments
+    overflow or the orthant probabilities do not sum to one (an infeasible trial point).
     """
     n = M.shape[0]
     C = np.full((n, n), -1.0 / (n - 1))
@@ -542,9 +715,10 @@ def _fixed_time_probabilities(M, w, phi1, phi2, beta, sigma2, n_steps):
         mean, cov = _moments(S, mu, phi, np.zeros(n), n_steps)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ClosedFormAccuracyWarning)
+    try:
         return _probabilities_from_moments(mean, cov)
+    except _OrthantSumError:
+        return None
 
 
 # ============================================================== exact mixture (conditional MC)
@@ -697,25 +871,19 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
         j = np.minimum(np.searchsorted(cum, rng.random(n_sequences), side="right"), w.size - 1)
         A = A @ S.T + CM[:, j].T
     # Orthant probabilities of N(base + A, noise) for every sequence and option.
-    means = base + A
-    f = np.empty((n_sequences, n))
-    for i in range(n):
-        rivals = [r for r in range(n) if r != i]
-        L = -np.eye(n)[rivals]
-        L[:, i] = 1.0
-        mm = means @ L.T
-        cc = L @ noise @ L.T
-        if n == 2:
-            f[:, i] = special.ndtr(mm[:, 0] / np.sqrt(cc[0, 0]))
-        else:
-            f[:, i] = _bivariate_orthant_many(mm, cc)
+    f = _conditional_orthants(base + A, noise)
     # Control variates: first and second moments of A, known exactly.
     D = A - att_mean
     iu = np.triu_indices(n)
     Q = (D[:, :, None] * D[:, None, :])[:, iu[0], iu[1]] - att_cov[iu]
     X = np.hstack([D, Q])
-    X = X - X.mean(axis=0)  # sample-centred: the regression estimator
-    Xbar = (np.hstack([D, Q])).mean(axis=0)
+    # A control variate that does not vary (one attribute, or an attribute direction the
+    # model ignores) is rounding noise: regressing on it would amplify that noise.
+    a_scale = max(float(np.abs(A).max()), 1.0)
+    col_scale = np.concatenate([np.full(n, a_scale), np.full(Q.shape[1], a_scale**2)])
+    X = X[:, X.std(axis=0) > 1e-9 * col_scale]
+    Xbar = X.mean(axis=0)
+    X = X - Xbar  # sample-centred: the regression estimator
     fc = f - f.mean(axis=0)
     coef, *_ = np.linalg.lstsq(X, fc, rcond=None)
     est = f.mean(axis=0) - Xbar @ coef

@@ -502,14 +502,10 @@ class MDFTOrchestrator(Orchestrator):
             return out
         model = self.model(s)
         if self.threshold is None:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", mdft.ClosedFormAccuracyWarning)
-                try:
-                    p = mdft.choice_probabilities(model, self.n_steps)
-                except mdft.ClosedFormAccuracyWarning as exc:
-                    raise RuntimeError(
-                        f"the closed-form choice probabilities of state {s} are not accurate: {exc}"
-                    ) from exc
+            try:
+                p = mdft.choice_probabilities(model, self.n_steps)
+            except ValueError as exc:
+                raise ValueError(f"state {s}: {exc}") from exc
         else:
             if actions.size > 3:
                 raise ValueError(

@@ -169,20 +169,20 @@ def test_canonical_effects_in_closed_form():
 # ------------------------------------------------------------------ singular cases
 def test_sigma2_zero_one_attribute_is_deterministic():
     m = MDFTModel([[1.0], [3.0], [2.0]], [1.0], **CANON, sigma2=0.0)
-    np.testing.assert_array_equal(choice_probabilities(m, 50), [0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(choice_probabilities(m, 50, method="normal"), [0.0, 1.0, 0.0])
 
 
 def test_identical_options_split_ties_exactly():
     m = MDFTModel([[2.0], [2.0], [1.0]], [1.0], **CANON, sigma2=0.0)
-    np.testing.assert_allclose(choice_probabilities(m, 10), [0.5, 0.5, 0.0])
+    np.testing.assert_allclose(choice_probabilities(m, 10, method="normal"), [0.5, 0.5, 0.0])
     m = MDFTModel([[2.0], [2.0], [2.0]], [1.0], **CANON, sigma2=0.0)
-    np.testing.assert_allclose(choice_probabilities(m, 10), [1 / 3] * 3)
+    np.testing.assert_allclose(choice_probabilities(m, 10, method="normal"), [1 / 3] * 3)
     # Twins with attention switching only (sigma2 = 0): their preferences stay equal, and with
     # w = (1/2, 1/2) the valence is +-(-1, -1, 2) with equal chance, so P(t) is symmetric about
     # its zero mean: B wins half the time and the twins split the other half.
     m = MDFTModel([[1, 3], [1, 3], [3, 1]], [0.5, 0.5], **CANON, sigma2=0.0)
     for T in (1, 30):
-        np.testing.assert_allclose(choice_probabilities(m, T), [0.25, 0.25, 0.5], atol=1e-12)
+        np.testing.assert_allclose(choice_probabilities(m, T, method="normal"), [0.25, 0.25, 0.5], atol=1e-12)
 
 
 def test_sigma2_zero_rank_one_covariance_is_exact():
@@ -191,7 +191,7 @@ def test_sigma2_zero_rank_one_covariance_is_exact():
     w = np.array([0.3, 0.7])
     m = MDFTModel(M, w, **CANON, sigma2=0.0)
     # The Gaussian with the same two moments: P = xi + a z along one direction.
-    p = choice_probabilities(m, 1)
+    p = choice_probabilities(m, 1, method="normal")
     mean, cov = preference_moments(m, 1)
     vals, vecs = np.linalg.eigh(cov)
     a = vecs[:, -1] * np.sqrt(vals[-1])
@@ -207,7 +207,7 @@ def test_sigma2_zero_many_options_rank_deficient():
     # Five options, two attributes, sigma2 = 0, T = 2: the covariance has rank <= 2.
     M = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0], [0.5, 2.5], [2.5, 1.2]])
     m = MDFTModel(M, [0.4, 0.6], **CANON, sigma2=0.0)
-    p = choice_probabilities(m, 2)
+    p = choice_probabilities(m, 2, method="normal")
     mean, cov = preference_moments(m, 2)
     # Reference: sample the degenerate Gaussian directly.
     rng = np.random.default_rng(3)
@@ -226,7 +226,7 @@ def test_identity_feedback_matches_brute_force_probabilities():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
         m = MDFTModel.from_matrices(SETS["compromise"], [0.5, 0.5], S=np.eye(3))
     mean, cov = preference_moments(m, 100)
-    np.testing.assert_allclose(choice_probabilities(m, 100), orthant_reference(mean, cov),
+    np.testing.assert_allclose(choice_probabilities(m, 100, method="normal"), orthant_reference(mean, cov),
                                atol=1e-12)
 
 
@@ -247,10 +247,10 @@ def test_property_sum_to_one_and_permutation(n, seed, T, sigma2):
         m = MDFTModel(M, w, phi1=0.05, phi2=0.04, beta=5.0, sigma2=sigma2)
         perm = rng.permutation(n)
         mp = MDFTModel(M[perm], w, phi1=0.05, phi2=0.04, beta=5.0, sigma2=sigma2)
-    p = choice_probabilities(m, T)
+    p = choice_probabilities(m, T, method="normal")
     assert np.all(p >= 0) and abs(p.sum() - 1) < 1e-9
     tol = 1e-9 if n <= 3 else 2e-4
-    np.testing.assert_allclose(choice_probabilities(mp, T), p[perm], atol=tol)
+    np.testing.assert_allclose(choice_probabilities(mp, T, method="normal"), p[perm], atol=tol)
 
 
 def test_dominated_option_almost_never_chosen():

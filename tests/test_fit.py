@@ -25,7 +25,7 @@ def probabilities(M, subsets, params, T):
             warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
             m = mdft.MDFTModel(M[s], params["w"], phi1=params["phi1"], phi2=params["phi2"],
                                beta=params["beta"], sigma2=params["sigma2"])
-        out.append(mdft.choice_probabilities(m, T))
+        out.append(mdft.choice_probabilities(m, T, method="normal"))  # the fit's likelihood
     return out
 
 
