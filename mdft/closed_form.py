@@ -204,9 +204,10 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
     method : {"auto", "normal"}, default "auto"
         ``"normal"``: the normal approximation of ``P(T)`` (Roe et al. 2001), always;
         deterministic and smooth in the parameters (what :func:`mdft.fit` uses).
-        ``"auto"``: the normal approximation when its estimated error is at most
-        ``tol / 2`` for every option, otherwise an exact method (below), otherwise a
-        ``ValueError``.
+        ``"auto"``: the exact law when the attention sequences are few enough to
+        enumerate (at most 4,096; two or three options, or ``sigma2 = 0``); otherwise the
+        normal approximation when its estimated error is at most ``tol / 2`` for every
+        option, otherwise the exact mixture (below), otherwise a ``ValueError``.
     tol : float, default 0.002
         ``method="auto"``: the absolute error allowed on each probability, in (0, 0.5].
 
@@ -236,14 +237,16 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
     are decided by the sign of their mean; options equal with probability one split
     their probability equally.
 
-    ``method="auto"`` estimates the error of the approximation from the exact third and
-    fourth cumulants of the attention sum (the first Edgeworth terms of each option's
-    orthant probability; for four or more options a Cauchy-Schwarz bound on them) and
-    falls back, when that estimate exceeds ``tol / 2``, to the exact law of ``P(T)``:
-    enumeration of all attention sequences when there are at most 4,096 of them (two or
-    three options, or any number without noise), else the exact mixture
-    (:func:`mixture_choice_probabilities`, two or three options, ``sigma2 > 0``) with a
-    fixed seed and enough sequences for three standard errors within ``tol``.
+    ``method="auto"`` first enumerates the attention sequences when there are at most
+    4,096 of them (``J^T``; two or three options, or any number without noise): that is
+    the exact law at about the cost of the estimate. Otherwise it estimates the error of
+    the approximation from the exact third and fourth cumulants of the attention sum (the
+    leading Edgeworth terms of each option's orthant probability: in closed form for two
+    options, by finite differences of Owen's T for three, by quasi-Monte Carlo capped by
+    a Cauchy-Schwarz bound for four or more) and, when that estimate exceeds ``tol / 2``,
+    falls back to the exact mixture (:func:`mixture_choice_probabilities`, two or three
+    options, ``sigma2 > 0``) with a fixed seed and enough sequences for three standard
+    errors within ``tol``.
     ``docs/closed_form.md`` gives the accuracy of the estimate on random models.
 
     Examples
@@ -257,8 +260,8 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
     >>> round(float(p.sum()), 12)
     1.0
 
-    At ``T = 3`` the normal approximation is not good enough for ``tol = 0.002``: the
-    eight attention sequences are enumerated instead.
+    At ``T = 3`` there are eight attention sequences: they are enumerated, which gives
+    the exact law; the normal approximation is off by 0.004 here.
 
     >>> mdft.choice_probabilities(model, 3).round(4).tolist()
     [0.3736, 0.3736, 0.2527]
@@ -283,6 +286,10 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
         p, reason = None, str(exc)
     if method == "normal":
         return p
+    if _n_sequences(model, n_steps) <= _ENUMERATE_MAX and (model.n_options <= 3
+                                                          or model.sigma2 == 0):
+        # few attention sequences: the exact law costs about as much as the estimate
+        return _enumerated_probabilities(model, n_steps)
     if p is not None:
         est = float(_normal_error(model, n_steps, mean, cov, p, tol / _SAFETY).max())
         if est <= tol / _SAFETY:

@@ -69,18 +69,28 @@ def test_enumeration_matches_simulation(seed, n, noisy):
 # ------------------------------------------------------------------ the contract
 @settings(max_examples=40, deadline=None)
 @given(seed=hst.integers(0, 2**32 - 1), n=hst.integers(2, 3))
-def test_auto_is_within_tol_of_the_exact_law_short_deliberations(seed, n):
-    """Random 2-3 option models, T short enough to enumerate: the exact law is known."""
+def test_estimate_tracks_the_error_where_it_takes_over(seed, n):
+    """Random 2-3 option models at the longest T that can still be enumerated (beyond it
+    ``method="auto"`` relies on the estimate): the exact law is known there."""
     rng = np.random.default_rng(seed)
-    model = random_model(rng, n)
-    T = int(rng.integers(1, max_enumerable_steps(model) + 1))
+    model = random_model(rng, n, J=int(rng.integers(2, 5)))
+    T = max_enumerable_steps(model)
     exact = quiet(_enumerated_probabilities, model, T)
     p, est = estimate(model, T)
     err = np.abs(p - exact).max()
-    # the estimate never under-reports badly (measured: est / err >= 0.28 on random models)
-    assert est.max() >= err / 5 or err < 5e-4, (err, est)
-    auto = quiet(choice_probabilities, model, T)
-    assert np.abs(auto - exact).max() <= TOL
+    # accepted by the estimate -> within tol; and it never under-reports badly
+    assert est.max() > TOL / 2 or err <= TOL, (err, est)
+    assert est.max() >= err / 4 or err < 5e-4, (err, est)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), n=hst.integers(2, 6))
+def test_auto_enumerates_short_deliberations(seed, n):
+    rng = np.random.default_rng(seed)
+    model = random_model(rng, n, sigma2=None if n <= 3 else 0.0)
+    T = int(rng.integers(1, max_enumerable_steps(model) + 1))
+    np.testing.assert_array_equal(quiet(choice_probabilities, model, T, tol=0.5),
+                                  quiet(_enumerated_probabilities, model, T))
 
 
 @settings(max_examples=8, deadline=None)
@@ -123,7 +133,7 @@ def canonical(M=SIMILARITY, **kw):
     return quiet(mdft.MDFTModel, M, [0.5, 0.5], **params)
 
 
-@pytest.mark.parametrize("T", [4, 13, 40])
+@pytest.mark.parametrize("T", [13, 40])
 def test_switch_happens_exactly_where_the_estimate_says(T):
     model = canonical(phi2=0.12, sigma2=0.5)
     p, est = estimate(model, T)
@@ -133,14 +143,11 @@ def test_switch_happens_exactly_where_the_estimate_says(T):
     np.testing.assert_array_equal(below, p)  # estimate within tol/2: the normal answer
     above = choice_probabilities(model, T, tol=2 * e * 0.999)
     assert not np.array_equal(above, p)
-    if T <= max_enumerable_steps(model):
-        np.testing.assert_array_equal(above, _enumerated_probabilities(model, T))
-    else:
-        # the exact mixture with the fixed seed: deterministic, and within tol of an
-        # independent run
-        np.testing.assert_array_equal(above, choice_probabilities(model, T, tol=2 * e * 0.999))
-        mix = mixture_choice_probabilities(model, T, n_sequences=50_000, rng=1)
-        assert np.all(np.abs(above - mix.probabilities) <= 2 * e + 3 * mix.standard_errors)
+    # the exact mixture with the fixed seed: deterministic, and within tol of an
+    # independent run
+    np.testing.assert_array_equal(above, choice_probabilities(model, T, tol=2 * e * 0.999))
+    mix = mixture_choice_probabilities(model, T, n_sequences=50_000, rng=1)
+    assert np.all(np.abs(above - mix.probabilities) <= 2 * e + 3 * mix.standard_errors)
 
 
 def test_common_cases_stay_on_the_normal_approximation():
@@ -163,10 +170,10 @@ def test_exact_gaussian_cases_have_zero_estimate():
     # one attribute: no attention randomness, P(T) is exactly normal
     m = quiet(mdft.MDFTModel, [[1.0], [3.0], [2.0]], [1.0], phi1=0.02, phi2=0.3, beta=2.0,
               sigma2=0.05)
-    _, est = estimate(m, 3)
+    _, est = estimate(m, 30)
     assert np.all(est == 0)
     # mirror-image binary set: the error terms vanish by symmetry, as the error does
-    _, est = estimate(canonical([[1.0, 3.0], [3.0, 1.0]]), 2)
+    _, est = estimate(canonical([[1.0, 3.0], [3.0, 1.0]]), 30)
     np.testing.assert_allclose(est, 0.0, atol=1e-12)
 
 
@@ -205,7 +212,6 @@ def test_orthants_that_do_not_sum_to_one_raise_or_fall_back(monkeypatch):
     monkeypatch.setattr(cf, "_orthant", lambda *a: (0.5, 0.0))
     with pytest.raises(ValueError, match=r"sum to 1.5 instead of 1 .*use mdft.simulate"):
         choice_probabilities(m, 3, method="normal")
-    np.testing.assert_array_equal(choice_probabilities(m, 3), _enumerated_probabilities(m, 3))
     # too long to enumerate: the exact mixture (its own orthants are unaffected)
     assert np.abs(choice_probabilities(m, 40) - good).max() <= TOL
     m5 = canonical([[1, 3], [3, 1], [2, 2], [0.5, 2.5], [2.5, 1.2]])
