@@ -111,13 +111,16 @@ def main(argv=None):
         diff = np.abs(normal - exact)
         err = float(diff.max())
         err_low = float(np.max(diff - 2 * se))  # the error is at least this (2 SE)
+        enumerable = _n_sequences(model, T) <= _ENUMERATE_MAX and (n <= 3 or params["sigma2"] == 0)
+        path = ("enumerate" if enumerable else "normal" if est <= args.tol / _SAFETY
+                else "mixture" if n <= 3 else "raise")
         row = dict(n=n, T=T, J=model.n_attributes, est=est, err=err, err_low=err_low,
-                   se=float(np.max(se)), ref=ref, **params)
+                   se=float(np.max(se)), ref=ref, path=path, **params)
         if not args.no_timing:
             row["t_normal"] = median_ms(lambda: mdft.choice_probabilities(model, T,
                                                                           method="normal"))
             row["t_auto"] = median_ms(lambda: auto(model, T, args.tol),
-                                      repeats=5 if est <= args.tol / _SAFETY else 1)
+                                      repeats=1 if path in ("mixture", "raise") else 5)
         rows.append(row)
     elapsed = time.perf_counter() - t0
     err = np.array([r["err"] for r in rows])
@@ -142,17 +145,25 @@ def main(argv=None):
         if sel.any():
             print(f"  c = {c:<6g}: {sel.sum():3d} models ({sel.mean():.0%}), largest error "
                   f"{err[sel].max():.4f} (>= {max(low[sel].max(), 0):.4f})")
-    acc = est <= args.tol / _SAFETY
-    print(f"method='auto' with tol={args.tol:g} keeps the normal answer for {acc.mean():.0%} of "
-          f"the models")
+    used = np.array([r["path"] != "enumerate" for r in rows])
+    if used.any() and (~used).any():
+        print(f"where method='auto' relies on the estimate (not enumerable, {used.sum()} "
+              f"models): largest error among est <= tol/2 = {args.tol / _SAFETY:g}: "
+              f"{err[used & (est <= args.tol / _SAFETY)].max(initial=0):.4f}")
+    paths = [r["path"] for r in rows]
+    print(f"method='auto' with tol={args.tol:g}: "
+          + ", ".join(f"{k} {paths.count(k) / len(paths):.0%}"
+                      for k in ("enumerate", "normal", "mixture", "raise")))
     if not args.no_timing:
         tn = np.array([r["t_normal"] for r in rows])
         ta = np.array([r["t_auto"] for r in rows])
-        print(f"time per call where accepted: normal median {np.median(tn[acc]):.2f} ms, auto "
-              f"median {np.median(ta[acc]):.2f} ms (max {ta[acc].max():.1f} ms)")
-        if (~acc).any():
-            print(f"time per call where auto falls back (or raises): median "
-                  f"{np.median(ta[~acc]):.1f} ms, max {ta[~acc].max():.0f} ms")
+        print(f"time per call, method='normal': median {np.median(tn):.2f} ms, max "
+              f"{tn.max():.1f} ms")
+        for k in ("enumerate", "normal", "mixture", "raise"):
+            sel = np.array([p == k for p in paths])
+            if sel.any():
+                print(f"time per call, method='auto' -> {k:9s}: median {np.median(ta[sel]):.2f} "
+                      f"ms, max {ta[sel].max():.1f} ms ({sel.sum()} models)")
     print("models with the largest error-to-estimate ratio:")
     print(f"{'err':>7s} {'est':>7s} {'ref':>4s} {'n':>2s} {'T':>4s} {'J':>2s} {'phi2':>6s} "
           f"{'sigma2':>6s}")

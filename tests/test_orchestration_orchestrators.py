@@ -280,3 +280,12 @@ def test_orchestrators_pickle_for_process_executors(small_prefs):
         copy = pickle.loads(pickle.dumps(orch))
         assert copy.decide_many([0, 1, 2] * 10, rng=3).tolist() == orch.decide_many([0, 1, 2] * 10, rng=3).tolist()
         np.testing.assert_array_equal(copy.action_probabilities(1), orch.action_probabilities(1))
+
+
+def test_mdft_action_probabilities_raise_where_the_closed_form_cannot_vouch(small_prefs):
+    # strong decay and little noise: eight actions, no exact method, a clear error
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.7, 0.3), phi2=0.2, sigma2=1e-3,
+                                             n_steps=40)
+    with pytest.raises(ValueError, match=r"^state 2: choice_probabilities cannot vouch for its "
+                                         r"answer.*8 options"):
+        orch.action_probabilities(2)
