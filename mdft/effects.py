@@ -540,8 +540,9 @@ def context_effects(
         Monte Carlo trials per option set (ternary and binary each), at least 100 (fewer
         cannot give a standard error worth the name) and at most 100,000,000.
     method : {"monte_carlo", "analytic"}, default "monte_carlo"
-        ``"analytic"`` uses :func:`mdft.choice_probabilities` (the Gaussian
-        closed form) for fixed time and :func:`mdft.threshold_probabilities`
+        ``"analytic"`` uses :func:`mdft.choice_probabilities` (the closed
+        form; exact where the normal approximation may be off by more than
+        0.002, or an error where no exact method applies) for fixed time and :func:`mdft.threshold_probabilities`
         for threshold stopping (two or three options; for three it can take
         minutes, or refuse a model whose error it cannot bound, see
         ``docs/threshold_exact.md``); no sampling error then.

@@ -243,7 +243,7 @@ class CompromiseWitness:
     settings : dict
         ``phi1``, ``phi2``, ``beta``, ``sigma2`` and ``n_steps`` of the MDFT orchestrator.
     probabilities : ndarray, shape (3,)
-        Its choice distribution (:func:`mdft.choice_probabilities`).
+        Its choice distribution (:func:`mdft.choice_probabilities`, normal approximation).
     wa_interval : None
         :func:`wa_most_likely_interval` for the middle action: ``None``, no WA weights
         make it the most likely.
@@ -501,7 +501,8 @@ def _mdft_probabilities(M, w_n, settings, n_steps):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
         model = mdft.MDFTModel(M, [w_n, 1.0 - w_n], **settings)
-    return mdft.choice_probabilities(model, n_steps)
+    # the normal approximation, as in mdft.fit: smooth in w_n, never switching method
+    return mdft.choice_probabilities(model, n_steps, method="normal")
 
 
 def mdft_vs_wa_instance(seed, *, n_actions=8, n_choices=100, n_steps=25, phi1=0.01, phi2=0.01,
@@ -531,7 +532,8 @@ def mdft_vs_wa_instance(seed, *, n_actions=8, n_choices=100, n_steps=25, phi1=0.
     ``sq_n, sq_c ~ Dirichlet(1, ..., 1)``, ``w_n ~ U(0, 1)``, ``p_WA = w_n sq_n + (1 -
     w_n) sq_c``, ``counts ~ Multinomial(n_choices, p_WA)``. The attention of an MDFT
     model with ``M = [sq_n, sq_c]`` is fitted to the counts by maximum likelihood with
-    the fixed-time closed form, and separately chosen to minimise the JS divergence to
+    the fixed-time closed form (its normal approximation, ``method="normal"``, as in
+    :func:`mdft.fit`), and separately chosen to minimise the JS divergence to
     ``p_WA`` itself (a grid of 21 weights refined by bounded Brent search).
 
     Examples
