@@ -49,8 +49,9 @@ def random_problem(seed):
         for s in SUBSETS:
             model = mdft.MDFTModel(M[s], truth["w"], phi1=truth["phi1"], phi2=truth["phi2"],
                                    beta=truth["beta"], sigma2=truth["sigma2"])
+            # the fit's own likelihood model (the normal approximation)
             counts.append(rng.multinomial(int(rng.integers(15, 40)),
-                                          mdft.choice_probabilities(model, T)))
+                                          mdft.choice_probabilities(model, T, method="normal")))
     problem = dict(data=mdft.ChoiceData(SUBSETS, counts), M=M, stopping=T, params=PARAMS,
                    fixed=dict(beta=truth["beta"]))
     return problem, truth

@@ -73,7 +73,8 @@ def true_predictions(problem):
             m = mdft.MDFTModel(problem.M[s], problem.w, phi1=problem.phi1, phi2=problem.phi2,
                                beta=problem.beta, sigma2=problem.sigma2)
             if problem.time_based:
-                out.append(mdft.choice_probabilities(m, problem.n_steps))
+                # the fit's own likelihood model (the normal approximation)
+                out.append(mdft.choice_probabilities(m, problem.n_steps, method="normal"))
             else:
                 r = mdft.simulate(m, 100_000, stopping=mdft.Threshold(problem.theta), rng=0)
                 out.append(r.probabilities / r.probabilities.sum())
