@@ -63,10 +63,14 @@ def step_cumulants(CM, w):
     return k3, k4
 
 
-def attention_cumulants(S, CM, w, n_steps):
-    """``(kappa_3, kappa_4)`` of the attention sum over ``n_steps`` steps, by doubling."""
-    k3, k4 = step_cumulants(CM, w)
-    base = (S.copy(), k3, k4)
+def geometric_sums(S, terms, n_steps):
+    """``(S^T, [sum_{k<T} S^k . K for K in terms])`` by repeated doubling.
+
+    ``S^k . K`` applies ``S^k`` to every index of the symmetric tensor ``K`` (a vector:
+    ``S^k K``; a matrix: ``S^k K S^kT``). A block of ``t`` steps joins one of ``t2`` steps
+    after it as ``(A1 A2, K1 + A1 . K2)``: ``O(log T)`` products, no inverse of ``I - S``.
+    """
+    base = (S.copy(), list(terms))
     acc = None
     t = n_steps
     while t:
@@ -74,14 +78,19 @@ def attention_cumulants(S, CM, w, n_steps):
             if acc is None:
                 acc = base
             else:
-                A1, a3, a4 = acc
-                A2, b3, b4 = base
-                acc = (A1 @ A2, a3 + _multilinear(A1, b3), a4 + _multilinear(A1, b4))
+                A1, k1 = acc
+                A2, k2 = base
+                acc = (A1 @ A2, [a + _multilinear(A1, b) for a, b in zip(k1, k2)])
         t >>= 1
         if t:
-            A, c3, c4 = base
-            base = (A @ A, c3 + _multilinear(A, c3), c4 + _multilinear(A, c4))
-    return acc[1], acc[2]
+            A, k = base
+            base = (A @ A, [c + _multilinear(A, c) for c in k])
+    return acc
+
+
+def attention_cumulants(S, CM, w, n_steps):
+    """``(kappa_3, kappa_4)`` of the attention sum over ``n_steps`` steps."""
+    return tuple(geometric_sums(S, step_cumulants(CM, w), n_steps)[1])
 
 
 def _comparison(n, i):
@@ -141,7 +150,7 @@ def _operator(K):
     return np.array([comb(r, a) * K[(0,) * a + (1,) * (r - a)] for a in range(r + 1)])
 
 
-def _orthant2(h, k, rho):
+def bivariate_cdf(h, k, rho):
     """``Pr(Z1 < h, Z2 < k)`` for standard bivariate normals with correlation ``rho``.
 
     Owen's T function; ``h``, ``k``, ``rho`` arrays of one shape, ``|rho| < 1``.
@@ -164,7 +173,7 @@ def _terms_2d(x, rho, k3, k4):
     standardised cumulant tensors of ``m`` options; returns (m, 3).
     """
     pts = x[:, None, :] + _OFFSETS[None, :, :]
-    G = _orthant2(pts[..., 0], pts[..., 1], np.broadcast_to(rho[:, None], pts.shape[:2]))
+    G = bivariate_cdf(pts[..., 0], pts[..., 1], np.broadcast_to(rho[:, None], pts.shape[:2]))
     out = np.empty((x.shape[0], 3))
     for i in range(x.shape[0]):
         p3 = _operator(k3[i])

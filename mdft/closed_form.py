@@ -42,7 +42,7 @@ from scipy import special
 from ._typing import SeedLike
 from ._export import builtin, fmt, labels_for, table, to_json
 from ._repr import compact_repr
-from ._edgeworth import attention_cumulants, error_estimate
+from ._edgeworth import attention_cumulants, bivariate_cdf, error_estimate, geometric_sums
 from ._validation import MAX_STEPS, as_count, as_scalar
 from .model import MDFTModel, UnstableFeedbackWarning, warn_if_growing
 
@@ -166,26 +166,8 @@ def preference_moments(model: MDFTModel, n_steps: int) -> tuple[np.ndarray, np.n
 
 
 def _moments(S, mu, phi, P0, n_steps):
-    """Doubling recursion for ``(S^t, sum_{k<t} S^k mu, sum_{k<t} S^k Phi S^kT)``."""
-    # Block for t steps: (A = S^t, m = sum_{k<t} S^k mu, O = sum_{k<t} S^k Phi S^kT).
-    # Joining a block of t1 steps before one of t2 steps (t1 first in the sum index):
-    #   A = A1 A2, m = m1 + A1 m2, O = O1 + A1 O2 A1^T.
-    base = (S.copy(), mu.copy(), phi.copy())
-    acc = None
-    t = n_steps
-    while t:
-        if t & 1:
-            if acc is None:
-                acc = base
-            else:
-                A1, m1, O1 = acc
-                A2, m2, O2 = base
-                acc = (A1 @ A2, m1 + A1 @ m2, O1 + A1 @ O2 @ A1.T)
-        t >>= 1
-        if t:
-            A, m, O = base
-            base = (A @ A, m + A @ m, O + A @ O @ A.T)
-    A, m, O = acc
+    """``(sum_{k<T} S^k mu + S^T P0, sum_{k<T} S^k Phi S^kT)`` by repeated doubling."""
+    A, (m, O) = geometric_sums(S, (mu, phi), n_steps)
     mean = m + A @ P0
     cov = 0.5 * (O + O.T)
     return mean, cov
@@ -910,13 +892,5 @@ def _bivariate_orthant_many(m, c):
     h, k = m[:, 0] / s1, m[:, 1] / s2
     if abs(rho) > 1.0 - 1e-12:
         return np.array([_orthant_bivariate(row, c) for row in m])
-    root = np.sqrt(1.0 - rho * rho)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a_h = np.where(h != 0.0, (k - rho * h) / (h * root), np.copysign(np.inf, k - rho * h))
-        a_k = np.where(k != 0.0, (h - rho * k) / (k * root), np.copysign(np.inf, h - rho * k))
-    corr = np.where((h * k > 0.0) | ((h * k == 0.0) & (h + k >= 0.0)), 0.0, 0.5)
-    p = (0.5 * (special.ndtr(h) + special.ndtr(k)) - special.owens_t(h, a_h)
-         - special.owens_t(k, a_k) - corr)
-    both0 = (h == 0.0) & (k == 0.0)
-    p = np.where(both0, 0.25 + np.arcsin(rho) / (2.0 * np.pi), p)
+    p = bivariate_cdf(h, k, np.full(h.shape, rho))
     return np.clip(p, 0.0, 1.0)
