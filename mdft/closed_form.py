@@ -79,9 +79,11 @@ _SAFETY = 2.0
 _ENUMERATE_MAX = 4096
 _MIXTURE_SEED = 20_011
 _MIXTURE_START = 20_000
-_MIXTURE_MAX = 400_000
+_MIXTURE_MAX = 200_000
 _MIXTURE_WORK = 20_000_000
 _METHODS = ("auto", "normal")
+#: Attention sequences simulated together by the exact mixture.
+_MIXTURE_BLOCK = 8192
 
 
 class ClosedFormAccuracyWarning(RuntimeWarning):
@@ -854,11 +856,17 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
         )
     warn_if_growing(model.spectral_radius, n_steps, stacklevel=2)
     # Attention sums of the sampled sequences: A(t+1) = S A(t) + C M e_{j(t+1)}.
-    A = np.zeros((n_sequences, n))
+    # Blocks of sequences keep the working set in cache (one block: the draws of one pass).
+    A = np.empty((n_sequences, n))
     cum = np.cumsum(w)
-    for _ in range(n_steps):
-        j = np.minimum(np.searchsorted(cum, rng.random(n_sequences), side="right"), w.size - 1)
-        A = A @ S.T + CM[:, j].T
+    CMT = np.ascontiguousarray(CM.T)
+    for lo in range(0, n_sequences, _MIXTURE_BLOCK):
+        a = np.zeros((min(_MIXTURE_BLOCK, n_sequences - lo), n))
+        for _ in range(n_steps):
+            j = np.minimum(np.searchsorted(cum, rng.random(a.shape[0]), side="right"),
+                           w.size - 1)
+            a = a @ S.T + CMT[j]
+        A[lo:lo + a.shape[0]] = a
     # Orthant probabilities of N(base + A, noise) for every sequence and option.
     f = _conditional_orthants(base + A, noise)
     # Control variates: first and second moments of A, known exactly.
