@@ -36,8 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mdft  # noqa: E402
-from mdft.closed_form import (_ENUMERATE_MAX, _SAFETY, _enumerated_probabilities,  # noqa: E402
-                              _n_sequences, _normal_error)
+from mdft._edgeworth import lumpiness  # noqa: E402
+from mdft.closed_form import (_ENUMERATE_MAX, _LUMPY_MAX, _SAFETY,  # noqa: E402
+                              _enumerated_probabilities, _n_sequences, _normal_error)
 
 
 def parse_options(text):
@@ -112,10 +113,12 @@ def main(argv=None):
         err = float(diff.max())
         err_low = float(np.max(diff - 2 * se))  # the error is at least this (2 SE)
         enumerable = _n_sequences(model, T) <= _ENUMERATE_MAX and (n <= 3 or params["sigma2"] == 0)
-        path = ("enumerate" if enumerable else "normal" if est <= args.tol / _SAFETY
+        lumpy = lumpiness(cov, np.asarray(model.C) @ np.asarray(model.M), np.asarray(model.w))
+        trusted = lumpy <= _LUMPY_MAX
+        path = ("enumerate" if enumerable else "normal" if trusted and est <= args.tol / _SAFETY
                 else "mixture" if n <= 3 else "raise")
         row = dict(n=n, T=T, J=model.n_attributes, est=est, err=err, err_low=err_low,
-                   se=float(np.max(se)), ref=ref, path=path, **params)
+                   se=float(np.max(se)), ref=ref, path=path, trusted=trusted, **params)
         if not args.no_timing:
             row["t_normal"] = median_ms(lambda: mdft.choice_probabilities(model, T,
                                                                           method="normal"))
@@ -145,11 +148,18 @@ def main(argv=None):
         if sel.any():
             print(f"  c = {c:<6g}: {sel.sum():3d} models ({sel.mean():.0%}), largest error "
                   f"{err[sel].max():.4f} (>= {max(low[sel].max(), 0):.4f})")
+    trusted = np.array([r["trusted"] for r in rows])
+    print(f"models where the last attention draw splits P(T) into modes (estimate not "
+          f"trusted): {np.mean(~trusted):.0%}")
+    if trusted.any():
+        ratio = est[big & trusted] / err[big & trusted]
+        if ratio.size:
+            print(f"  among the others, estimate / error where error > 5e-4: min "
+                  f"{ratio.min():.2f}, median {np.median(ratio):.2f}")
     used = np.array([r["path"] != "enumerate" for r in rows])
-    if used.any() and (~used).any():
-        print(f"where method='auto' relies on the estimate (not enumerable, {used.sum()} "
-              f"models): largest error among est <= tol/2 = {args.tol / _SAFETY:g}: "
-              f"{err[used & (est <= args.tol / _SAFETY)].max(initial=0):.4f}")
+    acc = used & trusted & (est <= args.tol / _SAFETY)
+    print(f"returned as the normal answer by method='auto' ({acc.sum()} models): largest error "
+          f"{err[acc].max(initial=0):.4f} (>= {max(low[acc].max(initial=0), 0):.4f})")
     paths = [r["path"] for r in rows]
     print(f"method='auto' with tol={args.tol:g}: "
           + ", ".join(f"{k} {paths.count(k) / len(paths):.0%}"

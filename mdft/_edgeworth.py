@@ -93,6 +93,59 @@ def attention_cumulants(S, CM, w, n_steps):
     return tuple(geometric_sums(S, step_cumulants(CM, w), n_steps)[1])
 
 
+def lumpiness(cov, CM, w):
+    """How far the last attention draw alone moves a comparison, in standard deviations.
+
+    ``P(T)`` is the mixture, over the attribute attended at the last step, of the law of
+    everything else shifted by ``C M e_j``. Where those shifts are large against the spread
+    of the rest, the mixture has separate modes and no short Edgeworth expansion describes
+    it. Returns the largest shift between two attended attributes along a pairwise
+    difference ``P_a - P_b``, divided by the standard deviation of the rest along it.
+    """
+    keep = w > 0
+    c = CM[:, keep]
+    wk = w[keep]
+    rest = cov - c @ (np.diag(wk) - np.outer(wk, wk)) @ c.T
+    n = cov.shape[0]
+    a, b = np.triu_indices(n, 1)
+    var = rest[a, a] + rest[b, b] - 2.0 * rest[a, b]
+    shift = c[a] - c[b]  # (pairs, J)
+    spread = shift.max(axis=1) - shift.min(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(spread > 0, spread / np.sqrt(np.clip(var, 0.0, None)), 0.0)
+    return float(np.nan_to_num(d, nan=np.inf).max()) if d.size else 0.0
+
+
+def lattice_terms(mean, cov, noise_cov, CM, w):
+    """Per-option size of the lattice (continuity) error the Edgeworth terms miss.
+
+    With weak decay the attention sum moves on a lattice whose span along a comparison
+    ``l`` is at most ``h = max_j l.C M e_j - min_j l.C M e_j``; the normal approximation of
+    a lattice variable errs by up to ``h / (2 sd) phi(x)`` (Esseen's continuity term), and
+    noise of standard deviation ``s`` along ``l`` damps that by ``exp(-2 pi^2 s^2 / h^2)``
+    (the first Fourier coefficient of the sawtooth). Summed over an option's comparisons;
+    conservative where decay breaks the lattice.
+    """
+    n = mean.size
+    keep = w > 0
+    c = CM[:, keep]
+    out = np.zeros(n)
+    for i in range(n):
+        L = _comparison(n, i)
+        proj = L @ c
+        h = proj.max(axis=1) - proj.min(axis=1)
+        sd = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", L, cov, L), 0.0, None))
+        sn2 = np.clip(np.einsum("ij,jk,ik->i", L, noise_cov, L), 0.0, None)
+        ok = (h > 0) & (sd > 0)
+        if not ok.any():
+            continue
+        x = (L @ mean)[ok] / sd[ok]
+        damp = np.exp(-2.0 * np.pi**2 * sn2[ok] / h[ok] ** 2)
+        phi = np.exp(-0.5 * x * x) / np.sqrt(2.0 * np.pi)
+        out[i] = float(np.sum(h[ok] / (2.0 * sd[ok]) * phi * damp))
+    return out
+
+
 def _comparison(n, i):
     L = -np.eye(n)[np.arange(n) != i]
     L[:, i] = 1.0

@@ -42,7 +42,8 @@ from scipy import special
 from ._typing import SeedLike
 from ._export import builtin, fmt, labels_for, table, to_json
 from ._repr import compact_repr
-from ._edgeworth import attention_cumulants, bivariate_cdf, error_estimate, geometric_sums
+from ._edgeworth import (attention_cumulants, bivariate_cdf, error_estimate, geometric_sums,
+                         lattice_terms, lumpiness)
 from ._validation import MAX_STEPS, as_count, as_scalar
 from .model import MDFTModel, UnstableFeedbackWarning, warn_if_growing
 
@@ -73,6 +74,9 @@ _NEGLIGIBLE = 1e-13
 #: error estimate must stay below it for the normal approximation to be returned.
 DEFAULT_TOL = 0.002
 _SAFETY = 2.0
+#: Beyond this many standard deviations of the rest, the last attention draw splits P(T)
+#: into separate modes and the error estimate is not trusted.
+_LUMPY_MAX = 3.0
 #: Exact fallbacks: enumerate attention sequences up to this many; otherwise the exact
 #: mixture with a fixed seed, from this many sequences up to the cap, and at most this
 #: many sequence-steps of work.
@@ -274,6 +278,11 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
                                                           or model.sigma2 == 0):
         # few attention sequences: the exact law costs about as much as the estimate
         return _enumerated_probabilities(model, n_steps)
+    lumpy = lumpiness(cov, np.asarray(model.C) @ np.asarray(model.M), np.asarray(model.w))
+    if p is not None and lumpy > _LUMPY_MAX:
+        p, reason = None, (f"P(T) is far from normal: the last attention draw alone moves a "
+                           f"comparison by {lumpy:.3g} standard deviations of the rest (more "
+                           f"than {_LUMPY_MAX:g}), where the error estimate cannot be trusted")
     if p is not None:
         est = float(_normal_error(model, n_steps, mean, cov, p, tol / _SAFETY).max())
         if est <= tol / _SAFETY:
@@ -300,7 +309,12 @@ def _normal_error(model, n_steps, mean, cov, p, enough=0.0):
         k3, k4 = attention_cumulants(S, CM, np.asarray(model.w), n_steps)
     if not (np.all(np.isfinite(k3)) and np.all(np.isfinite(k4))):
         return np.full(p.shape, np.inf)
-    return error_estimate(mean, cov, k3, k4, p, enough)
+    w = np.asarray(model.w)
+    C = np.asarray(model.C)
+    with np.errstate(over="ignore", invalid="ignore"):
+        _, (noise,) = geometric_sums(S, (model.sigma2 * (C @ C.T),), n_steps)
+    lattice = lattice_terms(mean, cov, noise, CM, w)
+    return error_estimate(mean, cov, k3, k4, p, max(enough - lattice.max(), 0.0)) + lattice
 
 
 def _n_sequences(model, n_steps):
