@@ -15,6 +15,7 @@ from hypothesis import strategies as hst
 
 import mdft
 from mdft import closed_form as cf
+from mdft import _orthant as orthant
 from mdft._edgeworth import lumpiness
 from mdft.closed_form import (_LUMPY_MAX, DEFAULT_TOL, _enumerated_probabilities,
                               _fixed_time_probabilities, _normal_error, choice_probabilities,
@@ -237,8 +238,8 @@ def test_too_expensive_mixture_raises(monkeypatch):
 def test_orthants_that_do_not_sum_to_one_raise_or_fall_back(monkeypatch):
     m = canonical()
     good = choice_probabilities(m, 40)
-    monkeypatch.setattr(cf, "_small_regular", lambda *a: None)
-    monkeypatch.setattr(cf, "_orthant", lambda *a: (0.5, 0.0))
+    monkeypatch.setattr(orthant, "_small_regular", lambda *a: None)
+    monkeypatch.setattr(orthant, "_orthant", lambda *a: (0.5, 0.0))
     with pytest.raises(ValueError, match=r"sum to 1.5 instead of 1 .*use mdft.simulate"):
         choice_probabilities(m, 3, method="normal")
     # too long to enumerate: the exact mixture (its own orthants are unaffected)
