@@ -149,6 +149,7 @@ class MESCObjective:
         self._weight = 1.0 / n
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
+        self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
         self._shared = _kernels.shared_successors(nominal.next_states)
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
@@ -158,15 +159,15 @@ class MESCObjective:
         """Number of penalties."""
         return self.features.n_features
 
-    def _backward(self, w):
+    def _backward(self, w, policy=None):
         nom = self.nominal
         u_src, u_act, u_dst = self.features._projections(w)
         r_bar = _kernels.penalised_expected_rewards(
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._shared, self._policy,
-            self._demo_ptr, self._demo_s, self._demo_a,
+            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._shared,
+            self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a,
         )
 
     def __call__(self, penalties):
@@ -192,7 +193,7 @@ class MESCObjective:
         hit = self._recent.get(key)
         if hit is not None:
             return hit[0]
-        _, loglik = self._backward(w)
+        _, loglik = self._backward(w, self._scratch)
         self.n_evaluations += 1
         value = loglik * self._weight
         self._keep(key, value, None)

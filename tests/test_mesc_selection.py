@@ -152,6 +152,31 @@ def test_evidence_bounds_the_refitted_loss_on_random_worlds(seed, p_slip, n):
         assert res.evidence[f] >= refitted_drop(obj, res.penalties, support, f) - 1e-6
 
 
+@settings(deadline=None, max_examples=6)
+@given(seed=st.integers(0, 10_000), p_slip=st.sampled_from([0.0, 0.1]))
+def test_cheap_features_dropped_together_cost_less_than_one(seed, p_slip):
+    # the run removed at once is the m cheapest by held cost, and zeroing them all (others held) costs < cost
+    world = GridWorld.random(6, rng=seed, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4.0,
+                             p_slip=p_slip)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=seed)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), tol=0.03)
+    idx = np.flatnonzero(fit.penalties > 0)
+    held = mesc_selection._held(obj, fit, idx)
+    cost = 3.0
+    run = mesc_selection._cheap_run(obj, fit, idx, held, cost)
+    if held.min() >= cost:
+        assert run.size <= 1
+        return
+    m = run.size
+    assert 1 <= m <= np.count_nonzero(held < cost)
+    np.testing.assert_array_equal(np.sort(held[np.isin(idx, run)]), np.sort(held)[:m])
+    w = fit.penalties.copy()
+    w[run] = 0.0
+    joint = obj.n_demonstrations * (fit.value - obj(w)[0])  # the public call, independent of the cache
+    assert joint < cost or m == 1
+
+
 def test_zeta_combines_evidence_and_size(small_fit):
     world, _, res = small_fit
     s = res.sigma_nominal
