@@ -235,12 +235,14 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a):
+def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s,
+                       demo_a):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
     ``shared[s]`` says that every action of s lists the same successors in the same
     order (only the probabilities differ, as with slip): their values are then
-    gathered once per state. Demonstration transitions at step t are
+    gathered once per state and ``probs_t`` (``probs`` as (S, K, A), contiguous)
+    gives the actions' probabilities of one successor side by side. Demonstration transitions at step t are
     ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and ``demo_a``); their
     log-probabilities ``Q_t(s, a) - V_t(s)`` are summed without underflow.
     The horizon is ``demo_ptr.size - 1``; a ``policy`` of shape (1, S, A) is
@@ -268,7 +270,7 @@ def soft_backward_into(next_states, probs, r_bar, terminal, discount, shared, po
                 for k in range(n_succ):
                     vk = v_next[next_states[s, 0, k]]
                     for a in range(n_actions):
-                        acc_a[a] += probs[s, a, k] * vk
+                        acc_a[a] += probs_t[s, k, a] * vk
                 for a in range(n_actions):
                     q[s, a] = r_bar[s, a] + discount * acc_a[a]
             else:

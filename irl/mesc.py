@@ -151,6 +151,7 @@ class MESCObjective:
         self._policy = np.empty((H, S, A))
         self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
         self._shared = _kernels.shared_successors(nominal.next_states)
+        self._probs_t = np.ascontiguousarray(nominal.probs.transpose(0, 2, 1))
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
@@ -166,7 +167,7 @@ class MESCObjective:
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._shared,
+            nom.next_states, nom.probs, self._probs_t, r_bar, nom.terminal, nom.discount, self._shared,
             self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a,
         )
 
