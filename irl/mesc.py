@@ -546,7 +546,9 @@ def _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts):
     if selection == "l1":
         strength = cost / obj.n_demonstrations if l1 is None else l1
         fit = mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts)
-        return fit, mesc_selection.held_evidence(obj, fit), 1
+        # a penalty below sigma_N has a size factor below 1/2, so its zeta stays below 1/2 whatever its
+        # evidence: its evidence is not measured (one evaluation each)
+        return fit, mesc_selection.held_evidence(obj, fit, min_penalty=feasible_reward_sd(obj.nominal)), 1
     return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1
 
 
@@ -588,7 +590,9 @@ def mesc_irl(
         ``"l1"``: one fit of ``L(omega) - l1 * sum(omega)`` (default strength
         ``evidence_cost / N``); ``evidence`` is the log-likelihood lost when a
         penalty is set to zero with the others held (one evaluation per
-        penalised feature, no refits), zeta as for ``"evidence"``.
+        feature with a penalty of at least ``sigma_nominal``, no refits;
+        smaller penalties have a size factor below 1/2, so zeta < 1/2
+        whatever the evidence, and get evidence 0), zeta as for ``"evidence"``.
         ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
         the paper's map. ``"auto"`` (default): ``"none"`` with
         ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,

@@ -197,13 +197,15 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
 
 
-def held_evidence(obj, fit):
+def held_evidence(obj, fit, min_penalty=0.0):
     """Evidence of each penalised feature with the others held: ``N (L(omega) - L(omega with omega_f = 0))``.
 
-    One evaluation per penalised feature; an upper bound of the refitted
-    evidence of :func:`select`, used where refits are too costly.
+    One evaluation per feature with a penalty of at least ``min_penalty``
+    (and above zero); an upper bound of the refitted evidence of
+    :func:`select`, used where refits are too costly. Features below
+    ``min_penalty`` get no evidence (0).
     """
     evidence = np.zeros(obj.n_features)
-    idx = np.flatnonzero(fit.penalties > 0.0)
+    idx = np.flatnonzero((fit.penalties > 0.0) & (fit.penalties >= min_penalty))
     evidence[idx] = np.maximum(_held(obj, fit, idx), 0.0)
     return evidence

@@ -288,13 +288,18 @@ def test_auto_switches_to_one_l1_fit_and_preconditioning_on_large_problems(monke
     monkeypatch.setattr(mesc_module.MESCObjective, "feature_counts", spy)
     res = mesc_irl(world.nominal_mdp, demos)
     assert res.selection == "l1" and res.zeta_method == "evidence" and calls
-    # held-others evidence: the likelihood lost by zeroing each penalty alone
+    # held-others evidence: the likelihood lost by zeroing each penalty alone, measured where the
+    # penalty reaches sigma_N (below, zeta < 1/2 whatever the evidence: not measured, 0)
     obj0 = MESCObjective(world.nominal_mdp, demos)
     base = obj0(res.penalties)[0]
+    measured = res.penalties >= res.sigma_nominal
+    assert measured.any() and (~measured & (res.penalties > 0)).any()
     for f in range(world.n_features):
         w = np.array(res.penalties)
         w[f] = 0.0
-        assert res.evidence[f] == pytest.approx(max(len(demos) * (base - obj0(w)[0]), 0.0), abs=1e-9)
+        want = max(len(demos) * (base - obj0(w)[0]), 0.0) if measured[f] else 0.0
+        assert res.evidence[f] == pytest.approx(want, abs=1e-9)
+    assert np.all(res.zeta[~measured] < 0.5)
     # the L1 strength is the evidence cost per demonstration: its optimality conditions hold
     obj = MESCObjective(world.nominal_mdp, demos)
     lam = mesc_selection.evidence_cost(obj.n_decisions, world.n_features) / len(demos)
