@@ -12,7 +12,7 @@ argument once before calling them.
 
 import numpy as np
 from numba import types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from ._numba import njit, njit_inline
 
@@ -54,34 +54,9 @@ def _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q):
             q[s, a] = r_bar[s, a] + discount * acc
 
 
-@njit
-def _logsumexp_rows(q, terminal, v, policy):
-    """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals)."""
-    n_states, n_actions = q.shape
-    for s in range(n_states):
-        if terminal[s]:
-            v[s] = 0.0
-            for a in range(n_actions):
-                policy[s, a] = 1.0 / n_actions
-            continue
-        m = q[s, 0]
-        for a in range(1, n_actions):
-            if q[s, a] > m:
-                m = q[s, a]
-        acc = 0.0
-        for a in range(n_actions):
-            e = np.exp(q[s, a] - m)
-            policy[s, a] = e
-            acc += e
-        v[s] = m + np.log(acc)
-        for a in range(n_actions):
-            policy[s, a] /= acc
-
-
 # ------------------------------------------------------------------ fast exp
 @intrinsic
-def _bits_to_float(typingctx, bits):
-    """Reinterpret the 64 bits of an int64 as a float64."""
+def _bitcast_to_float(typingctx, bits):
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(types.float64))
 
@@ -89,12 +64,31 @@ def _bits_to_float(typingctx, bits):
 
 
 @intrinsic
-def _float_to_bits(typingctx, x):
-    """Reinterpret the 64 bits of a float64 as an int64."""
+def _bitcast_to_int(typingctx, x):
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(types.int64))
 
     return types.int64(types.float64), codegen
+
+
+def _bits_to_float(bits):
+    """Reinterpret the 64 bits of an int64 as a float64 (NumPy here; one instruction when compiled)."""
+    return np.int64(bits).view(np.float64)
+
+
+def _float_to_bits(x):
+    """Reinterpret the 64 bits of a float64 as an int64 (NumPy here; one instruction when compiled)."""
+    return np.float64(x).view(np.int64)
+
+
+@overload(_bits_to_float, inline="always")
+def _bits_to_float_compiled(bits):
+    return lambda bits: _bitcast_to_float(bits)
+
+
+@overload(_float_to_bits, inline="always")
+def _float_to_bits_compiled(x):
+    return lambda x: _bitcast_to_int(x)
 
 
 _LOG2E = 1.4426950408889634
@@ -128,8 +122,13 @@ def _exp_nonpositive(x):
 
 
 @njit
-def _softmax_rows(q, terminal, v, policy):
-    """As :func:`_logsumexp_rows`, with :func:`_exp_nonpositive` (the MESC-IRL hot loop)."""
+def _logsumexp_rows(q, terminal, v, policy):
+    """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals).
+
+    The exponentials (of ``q - max(q)``) are :func:`_exp_nonpositive`'s, in a
+    loop of their own so that it vectorises: the soft backward passes spend
+    most of their time here.
+    """
     n_states, n_actions = q.shape
     for s in range(n_states):
         if terminal[s]:
@@ -279,7 +278,7 @@ def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, s
                     for k in range(n_succ):
                         acc += probs[s, a, k] * v_next[next_states[s, a, k]]
                     q[s, a] = r_bar[s, a] + discount * acc
-        _softmax_rows(q, terminal, v, policy[t if keep else 0])
+        _logsumexp_rows(q, terminal, v, policy[t if keep else 0])
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             loglik += q[demo_s[i], demo_a[i]] - v[demo_s[i]]
         for s in range(n_states):
