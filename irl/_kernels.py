@@ -11,8 +11,10 @@ argument once before calling them.
 """
 
 import numpy as np
+from numba import types
+from numba.extending import intrinsic, overload
 
-from ._numba import njit
+from ._numba import njit, njit_inline
 
 
 # --------------------------------------------------------------------- helpers
@@ -52,9 +54,81 @@ def _bellman_q(next_states, probs, r_bar, terminal, discount, v_next, q):
             q[s, a] = r_bar[s, a] + discount * acc
 
 
+# ------------------------------------------------------------------ fast exp
+@intrinsic
+def _bitcast_to_float(typingctx, bits):
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return types.float64(types.int64), codegen
+
+
+@intrinsic
+def _bitcast_to_int(typingctx, x):
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int64))
+
+    return types.int64(types.float64), codegen
+
+
+def _bits_to_float(bits):
+    """Reinterpret the 64 bits of an int64 as a float64 (NumPy here; one instruction when compiled)."""
+    return np.int64(bits).view(np.float64)
+
+
+def _float_to_bits(x):
+    """Reinterpret the 64 bits of a float64 as an int64 (NumPy here; one instruction when compiled)."""
+    return np.float64(x).view(np.int64)
+
+
+@overload(_bits_to_float, inline="always")
+def _bits_to_float_compiled(bits):
+    return lambda bits: _bitcast_to_float(bits)
+
+
+@overload(_float_to_bits, inline="always")
+def _float_to_bits_compiled(x):
+    return lambda x: _bitcast_to_int(x)
+
+
+_LOG2E = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01  # ln 2 split so that n * _LN2_HI is exact for |n| < 2**11
+_LN2_LO = 1.90821492927058770002e-10
+_ROUND = 6755399441055744.0  # 1.5 * 2**52: adding it rounds to an integer held in the low mantissa bits
+_ROUND_BITS = 0x4338000000000000  # its bit pattern
+
+
+@njit_inline
+def _exp_nonpositive(x):
+    """exp(x) for x <= 0 within 2 ulp, written so that loops over it vectorise.
+
+    Range reduction ``x = n ln 2 + r`` with ``|r| <= ln 2 / 2`` and the Taylor
+    polynomial of degree 12 (truncation error below 2e-16 relative); 2**n is
+    built from its bits. Results below exp(-708) (where 2**n leaves the normal
+    range) are returned as 0, ``nan`` stays ``nan``. np.exp is a call into the C
+    library that LLVM cannot vectorise, and the soft backward pass of MESC-IRL
+    spends most of its time in it.
+    """
+    t = x * _LOG2E + _ROUND
+    n = t - _ROUND
+    r = x - n * _LN2_HI - n * _LN2_LO
+    p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (
+        1.0 / 720.0 + r * (1.0 / 5040.0 + r * (1.0 / 40320.0 + r * (1.0 / 362880.0 + r * (
+            1.0 / 3628800.0 + r * (1.0 / 39916800.0 + r * (1.0 / 479001600.0))))))))))))
+    y = p * _bits_to_float((_float_to_bits(t) - _ROUND_BITS + 1023) << 52)
+    if x >= -708.0:
+        return y
+    return 0.0 if x == x else x
+
+
 @njit
 def _logsumexp_rows(q, terminal, v, policy):
-    """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals)."""
+    """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals).
+
+    The exponentials (of ``q - max(q)``) are :func:`_exp_nonpositive`'s, in a
+    loop of their own so that it vectorises: the soft backward passes spend
+    most of their time here.
+    """
     n_states, n_actions = q.shape
     for s in range(n_states):
         if terminal[s]:
@@ -66,14 +140,15 @@ def _logsumexp_rows(q, terminal, v, policy):
         for a in range(1, n_actions):
             if q[s, a] > m:
                 m = q[s, a]
+        for a in range(n_actions):
+            policy[s, a] = _exp_nonpositive(q[s, a] - m)
         acc = 0.0
         for a in range(n_actions):
-            e = np.exp(q[s, a] - m)
-            policy[s, a] = e
-            acc += e
+            acc += policy[s, a]
         v[s] = m + np.log(acc)
+        inv = 1.0 / acc
         for a in range(n_actions):
-            policy[s, a] /= acc
+            policy[s, a] *= inv
 
 
 # ------------------------------------------------------------ value iteration
@@ -159,22 +234,27 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a):
+def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s,
+                       demo_a):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
     ``shared[s]`` says that every action of s lists the same successors in the same
     order (only the probabilities differ, as with slip): their values are then
-    gathered once per state. Demonstration transitions at step t are
+    gathered once per state and ``probs_t`` (``probs`` as (S, K, A), contiguous)
+    gives the actions' probabilities of one successor side by side. Demonstration transitions at step t are
     ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and ``demo_a``); their
     log-probabilities ``Q_t(s, a) - V_t(s)`` are summed without underflow.
+    The horizon is ``demo_ptr.size - 1``; a ``policy`` of shape (1, S, A) is
+    scratch space (the likelihood alone, each step overwriting the last).
     Returns ``(v0, log_likelihood_sum)``.
     """
     n_states, n_actions, n_succ = probs.shape
-    horizon = policy.shape[0]
+    horizon = demo_ptr.size - 1
+    keep = policy.shape[0] == horizon
     v_next = np.zeros(n_states)
     v = np.zeros(n_states)
     q = np.zeros((n_states, n_actions))
-    vk = np.zeros(n_succ)
+    acc_a = np.zeros(n_actions)
     loglik = 0.0
     for t in range(horizon - 1, -1, -1):
         for s in range(n_states):
@@ -183,20 +263,22 @@ def soft_backward_into(next_states, probs, r_bar, terminal, discount, shared, po
                     q[s, a] = 0.0
                 continue
             if shared[s]:
-                for k in range(n_succ):
-                    vk[k] = v_next[next_states[s, 0, k]]
+                # successor values gathered once; summed over k in order, for all actions at once
                 for a in range(n_actions):
-                    acc = 0.0
-                    for k in range(n_succ):
-                        acc += probs[s, a, k] * vk[k]
-                    q[s, a] = r_bar[s, a] + discount * acc
+                    acc_a[a] = 0.0
+                for k in range(n_succ):
+                    vk = v_next[next_states[s, 0, k]]
+                    for a in range(n_actions):
+                        acc_a[a] += probs_t[s, k, a] * vk
+                for a in range(n_actions):
+                    q[s, a] = r_bar[s, a] + discount * acc_a[a]
             else:
                 for a in range(n_actions):
                     acc = 0.0
                     for k in range(n_succ):
                         acc += probs[s, a, k] * v_next[next_states[s, a, k]]
                     q[s, a] = r_bar[s, a] + discount * acc
-        _logsumexp_rows(q, terminal, v, policy[t])
+        _logsumexp_rows(q, terminal, v, policy[t if keep else 0])
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             loglik += q[demo_s[i], demo_a[i]] - v[demo_s[i]]
         for s in range(n_states):

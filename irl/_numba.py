@@ -14,3 +14,6 @@ njit = numba.njit(**JIT_OPTIONS)
 
 njit_parallel = numba.njit(parallel=True, **JIT_OPTIONS)
 """Decorator for kernels whose outer loop is a ``prange`` over independent chunks."""
+
+njit_inline = numba.njit(inline="always", **JIT_OPTIONS)
+"""Decorator for small scalar helpers inlined into the kernels that call them (so loops over them vectorise)."""

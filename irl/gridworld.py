@@ -156,7 +156,7 @@ class GridWorld:
         set_(self, "step_cost", _as_real("step_cost", self.step_cost))
         set_(self, "goal_reward", _as_real("goal_reward", self.goal_reward))
         set_(self, "discount", _as_real("discount", self.discount, low=0.0, high=1.0, low_open=True))
-        if self.boundary not in ("clip", "stay"):
+        if not isinstance(self.boundary, str) or self.boundary not in ("clip", "stay"):
             raise ValueError(f"boundary must be 'clip' or 'stay' (got {self.boundary!r})")
 
     # ----------------------------------------------------------------- sizes

@@ -149,7 +149,9 @@ class MESCObjective:
         self._weight = 1.0 / n
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
+        self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
         self._shared = _kernels.shared_successors(nominal.next_states)
+        self._probs_t = np.ascontiguousarray(nominal.probs.transpose(0, 2, 1))
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
@@ -158,15 +160,15 @@ class MESCObjective:
         """Number of penalties."""
         return self.features.n_features
 
-    def _backward(self, w):
+    def _backward(self, w, policy=None):
         nom = self.nominal
         u_src, u_act, u_dst = self.features._projections(w)
         r_bar = _kernels.penalised_expected_rewards(
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, r_bar, nom.terminal, nom.discount, self._shared, self._policy,
-            self._demo_ptr, self._demo_s, self._demo_a,
+            nom.next_states, nom.probs, self._probs_t, r_bar, nom.terminal, nom.discount, self._shared,
+            self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a,
         )
 
     def __call__(self, penalties):
@@ -192,7 +194,7 @@ class MESCObjective:
         hit = self._recent.get(key)
         if hit is not None:
             return hit[0]
-        _, loglik = self._backward(w)
+        _, loglik = self._backward(w, self._scratch)
         self.n_evaluations += 1
         value = loglik * self._weight
         self._keep(key, value, None)
@@ -544,7 +546,9 @@ def _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts):
     if selection == "l1":
         strength = cost / obj.n_demonstrations if l1 is None else l1
         fit = mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts)
-        return fit, mesc_selection.held_evidence(obj, fit), 1
+        # a penalty below sigma_N has a size factor below 1/2, so its zeta stays below 1/2 whatever its
+        # evidence: its evidence is not measured (one evaluation each)
+        return fit, mesc_selection.held_evidence(obj, fit, min_penalty=feasible_reward_sd(obj.nominal)), 1
     return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1
 
 
@@ -586,7 +590,9 @@ def mesc_irl(
         ``"l1"``: one fit of ``L(omega) - l1 * sum(omega)`` (default strength
         ``evidence_cost / N``); ``evidence`` is the log-likelihood lost when a
         penalty is set to zero with the others held (one evaluation per
-        penalised feature, no refits), zeta as for ``"evidence"``.
+        feature with a penalty of at least ``sigma_nominal``, no refits;
+        smaller penalties have a size factor below 1/2, so zeta < 1/2
+        whatever the evidence, and get evidence 0), zeta as for ``"evidence"``.
         ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
         the paper's map. ``"auto"`` (default): ``"none"`` with
         ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,

@@ -16,14 +16,18 @@ module selects the constraints the demonstrations give evidence for:
    by ``N L_S - |S|`` (Akaike's cost, one nat per feature: a generous
    screen). The path stops at the first support that does not improve the
    score.
-2. **Backward elimination (evidence).** From the best screened support, the
-   feature whose removal costs the least log-likelihood is removed while that
-   cost is below ``cost`` nats. The cost with the other penalties held is an
-   upper bound of the cost with them refitted, so a feature whose held cost
-   is below ``cost`` is removed at once; when none is, each feature is
-   dropped in turn with the others refitted (which reveals redundant
-   features, such as a colour and the cells of that colour). The refitted
-   costs of the features that remain are their evidence
+2. **Backward elimination (evidence).** From the best screened support,
+   features whose removal costs fewer than ``cost`` nats of log-likelihood
+   are removed until none is left. The cost with the other penalties held is
+   an upper bound of the cost with them refitted, so a feature whose held
+   cost is below ``cost`` is removed at once; the cheapest features are
+   removed together when dropping them all at once (others held) costs less
+   than one feature (they are worth less than one feature, so one-at-a-time
+   removal would take them all). When no held cost is below ``cost``, the
+   features are dropped in turn, in the order of their held costs, with the
+   others refitted (which reveals redundant features, such as a colour and
+   the cells of that colour); the first whose refitted cost is below
+   ``cost`` is removed. When none is, their refitted costs are their evidence
    ``e_f = N (L_S - L_{S without f})`` (nats, over all demonstrations).
 3. **Probability** (in :class:`irl.mesc.MESCResult`).
    ``sigmoid(e_f - cost)`` is the posterior probability that f belongs to
@@ -77,6 +81,27 @@ def _held(obj, fit, features):
         w[f] = 0.0
         costs[j] = obj.n_demonstrations * (fit.value - obj._value(w))
     return costs
+
+
+def _cheap_run(obj, fit, idx, held, cost):
+    """The features to drop together: the longest run of the cheapest that costs less than one feature.
+
+    Sorted by their held costs, the first m features are dropped together if
+    dropping all m at once, the others held, costs fewer than ``cost`` nats:
+    together they are worth less than one feature, so one-at-a-time removal
+    would remove them all (in some order), each step costing less than
+    ``cost``. m is found by halving from the number of features below
+    ``cost`` (one evaluation each); m = 1 is the cheapest feature alone.
+    """
+    order = idx[np.argsort(held, kind="stable")]
+    m = int(np.count_nonzero(held < cost))
+    while m > 1:
+        w = fit.penalties.copy()
+        w[order[:m]] = 0.0
+        if obj.n_demonstrations * (fit.value - obj._value(w)) < cost:
+            break
+        m //= 2
+    return order[:m]
 
 
 def _refit(obj, w0, support, opts):
@@ -140,7 +165,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         # the cost of dropping f with the others held: an upper bound of the refitted cost
         held = _held(obj, fit, idx)
         if held.min() < cost:
-            support[idx[int(np.argmin(held))]] = False
+            support[_cheap_run(obj, fit, idx, held, cost)] = False
             fit = _refit(obj, fit.penalties, support, path_opts)
             n_fits += 1
             tight = False
@@ -151,12 +176,14 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
             tight = True
         # every feature survives with the others held: refit without each to see redundancy
         drops = []
-        for f in idx:
+        for f in idx[np.argsort(held, kind="stable")]:
             s2 = support.copy()
             s2[f] = False
             r = _refit(obj, fit.penalties, s2, path_opts)
             n_fits += 1
             drops.append((N * (fit.value - r.value), f, s2, r))
+            if drops[-1][0] < cost:  # rejected: the others need no refit this round
+                break
         gain, f, s2, r = min(drops, key=lambda d: d[0])
         if gain < cost:
             support, fit, tight = s2, r, False
@@ -170,13 +197,15 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
 
 
-def held_evidence(obj, fit):
+def held_evidence(obj, fit, min_penalty=0.0):
     """Evidence of each penalised feature with the others held: ``N (L(omega) - L(omega with omega_f = 0))``.
 
-    One evaluation per penalised feature; an upper bound of the refitted
-    evidence of :func:`select`, used where refits are too costly.
+    One evaluation per feature with a penalty of at least ``min_penalty``
+    (and above zero); an upper bound of the refitted evidence of
+    :func:`select`, used where refits are too costly. Features below
+    ``min_penalty`` get no evidence (0).
     """
     evidence = np.zeros(obj.n_features)
-    idx = np.flatnonzero(fit.penalties > 0.0)
+    idx = np.flatnonzero((fit.penalties > 0.0) & (fit.penalties >= min_penalty))
     evidence[idx] = np.maximum(_held(obj, fit, idx), 0.0)
     return evidence

@@ -160,3 +160,4 @@ def exponentiated_gradient(obj, n_features, *, steps=500, lr=0.3, clip=10.0, ini
     value, grad = obj._evaluate(best)
     message = "paper's stopping rule met" if stopped else f"{steps} steps done"
     return Fit(best, float(value), grad, step, stopped, message)
+

@@ -152,6 +152,8 @@ def test_bad_input():
         GridWorld(3, 0, 8, p_slip=1.5)
     with pytest.raises(ValueError, match="boundary must be 'clip' or 'stay'"):
         GridWorld(3, 0, 8, boundary="wrap")
+    with pytest.raises(ValueError, match=r"boundary must be 'clip' or 'stay' \(got array"):
+        GridWorld(3, 0, 8, boundary=np.ones((2, 2)))
     with pytest.raises(ValueError, match="size must be an integer >= 2"):
         GridWorld(1, 0, 0)
     with pytest.raises(ValueError, match="entry must have the key 'goal'"):

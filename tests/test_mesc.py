@@ -355,3 +355,25 @@ def test_gradient_on_random_mdps_with_dense_features(seed, discount):
     eps = 1e-6
     fd = np.array([(obj(w + eps * e)[0] - obj(w - eps * e)[0]) / (2 * eps) for e in np.eye(F)])
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
+
+
+def test_fast_exp_matches_numpy_exp_within_two_ulp():
+    # the backward pass's exp of q - max(q) <= 0, drawn over its whole range, and the edges
+    from irl._kernels import _exp_nonpositive
+    from numba import njit
+
+    @njit
+    def apply(x):
+        out = np.empty_like(x)
+        for i in range(x.size):
+            out[i] = _exp_nonpositive(x[i])
+        return out
+
+    rng = np.random.default_rng(5)
+    x = np.concatenate([-rng.exponential(10.0, 20000), -rng.uniform(0, 708, 20000), -rng.uniform(0, 1e-6, 2000),
+                        [0.0, -0.0, -5e-324, -np.log(2) / 2, -np.log(2), -700.0, -708.0]])
+    got, want = apply(x), np.exp(x)
+    assert np.all(np.abs(got - want) <= 2 * np.spacing(want))
+    # below exp(-708) the result is 0 (against at most 3e-308); -inf gives 0, nan stays nan
+    tail = apply(np.array([-708.5, -745.0, -1e5, -np.inf, np.nan]))
+    assert tail[:4].tolist() == [0.0, 0.0, 0.0, 0.0] and np.isnan(tail[4])

@@ -152,6 +152,31 @@ def test_evidence_bounds_the_refitted_loss_on_random_worlds(seed, p_slip, n):
         assert res.evidence[f] >= refitted_drop(obj, res.penalties, support, f) - 1e-6
 
 
+@settings(deadline=None, max_examples=6)
+@given(seed=st.integers(0, 10_000), p_slip=st.sampled_from([0.0, 0.1]))
+def test_cheap_features_dropped_together_cost_less_than_one(seed, p_slip):
+    # the run removed at once is the m cheapest by held cost, and zeroing them all (others held) costs < cost
+    world = GridWorld.random(6, rng=seed, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4.0,
+                             p_slip=p_slip)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=seed)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), tol=0.03)
+    idx = np.flatnonzero(fit.penalties > 0)
+    held = mesc_selection._held(obj, fit, idx)
+    cost = 3.0
+    run = mesc_selection._cheap_run(obj, fit, idx, held, cost)
+    if held.min() >= cost:
+        assert run.size <= 1
+        return
+    m = run.size
+    assert 1 <= m <= np.count_nonzero(held < cost)
+    np.testing.assert_array_equal(np.sort(held[np.isin(idx, run)]), np.sort(held)[:m])
+    w = fit.penalties.copy()
+    w[run] = 0.0
+    joint = obj.n_demonstrations * (fit.value - obj(w)[0])  # the public call, independent of the cache
+    assert joint < cost or m == 1
+
+
 def test_zeta_combines_evidence_and_size(small_fit):
     world, _, res = small_fit
     s = res.sigma_nominal
@@ -263,13 +288,18 @@ def test_auto_switches_to_one_l1_fit_and_preconditioning_on_large_problems(monke
     monkeypatch.setattr(mesc_module.MESCObjective, "feature_counts", spy)
     res = mesc_irl(world.nominal_mdp, demos)
     assert res.selection == "l1" and res.zeta_method == "evidence" and calls
-    # held-others evidence: the likelihood lost by zeroing each penalty alone
+    # held-others evidence: the likelihood lost by zeroing each penalty alone, measured where the
+    # penalty reaches sigma_N (below, zeta < 1/2 whatever the evidence: not measured, 0)
     obj0 = MESCObjective(world.nominal_mdp, demos)
     base = obj0(res.penalties)[0]
+    measured = res.penalties >= res.sigma_nominal
+    assert measured.any() and (~measured & (res.penalties > 0)).any()
     for f in range(world.n_features):
         w = np.array(res.penalties)
         w[f] = 0.0
-        assert res.evidence[f] == pytest.approx(max(len(demos) * (base - obj0(w)[0]), 0.0), abs=1e-9)
+        want = max(len(demos) * (base - obj0(w)[0]), 0.0) if measured[f] else 0.0
+        assert res.evidence[f] == pytest.approx(want, abs=1e-9)
+    assert np.all(res.zeta[~measured] < 0.5)
     # the L1 strength is the evidence cost per demonstration: its optimality conditions hold
     obj = MESCObjective(world.nominal_mdp, demos)
     lam = mesc_selection.evidence_cost(obj.n_decisions, world.n_features) / len(demos)
