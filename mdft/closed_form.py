@@ -376,15 +376,24 @@ def _conditional_orthants(means, noise):
     """``Pr(choose i | mean)`` for ``N(mean, noise)``, many means (N, n), n = 2 or 3."""
     n = means.shape[1]
     f = np.empty(means.shape)
-    for i in range(n):
-        L = -np.eye(n)[np.arange(n) != i]
-        L[:, i] = 1.0
-        mm = means @ L.T
-        cc = L @ noise @ L.T
-        if n == 2:
-            f[:, i] = special.ndtr(mm[:, 0] / np.sqrt(cc[0, 0]))
-        else:
-            f[:, i] = _bivariate_orthant_many(mm, cc)
+    with np.errstate(divide="ignore", invalid="ignore"):  # checked just below
+        for i in range(n):
+            L = -np.eye(n)[np.arange(n) != i]
+            L[:, i] = 1.0
+            mm = means @ L.T
+            cc = L @ noise @ L.T
+            if n == 2:
+                f[:, i] = special.ndtr(mm[:, 0] / np.sqrt(cc[0, 0]))
+            else:
+                f[:, i] = _bivariate_orthant_many(mm, cc)
+    if not np.all(np.isfinite(f)):
+        scale = float(np.abs(np.diag(noise)).max())
+        raise ValueError(
+            "the exact mixture cannot vouch for this model: the noise covariance of P(T) is "
+            f"numerically singular (variances up to {scale:.3g}, their differences lost to "
+            "rounding), as when the feedback S grows preferences over many steps; shorten "
+            "n_steps or use mdft.simulate"
+        )
     return f
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Sequence
@@ -157,13 +158,14 @@ class ContextEffect:
         labels = tuple(str(label) for label in self.labels)
         if len(labels) != n:
             raise ValueError(
-                f"labels must have one entry per option, {n} (got {len(labels)}: {labels})"
+                f"labels must have one entry per option (row of M), {n} (got {len(labels)}: "
+                f"{labels})"
             )
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "target", _index("target", self.target, n))
         rivals = tuple(_index("rivals", r, n) for r in _as_tuple("rivals", self.rivals))
         baseline = tuple(_index("baseline", b, n) for b in _as_tuple("baseline", self.baseline))
-        if self.measure not in _MEASURES:
+        if not isinstance(self.measure, str) or self.measure not in _MEASURES:
             raise ValueError(f"measure must be one of {_MEASURES} (got {self.measure!r})")
         if not rivals or self.target in rivals or len(set(rivals)) != len(rivals):
             raise ValueError(
@@ -181,11 +183,12 @@ class ContextEffect:
             if set(baseline) != {self.target, rivals[0]}:
                 raise ValueError(
                     "baseline must be the target and its rival for measure='relative_share' "
-                    f"(got baseline {baseline}, target {self.target}, rival {rivals[0]})"
+                    f"(got baseline {baseline}, target {self.target}, rivals {rivals})"
                 )
         object.__setattr__(self, "rivals", rivals)
         object.__setattr__(self, "baseline", baseline)
-        if self.direction not in (1, -1) or isinstance(self.direction, bool):
+        if (isinstance(self.direction, bool) or not isinstance(self.direction, numbers.Real)
+                or self.direction not in (1, -1)):
             raise ValueError(f"direction must be 1 or -1 (got {self.direction!r})")
         w = as_float_array("w", self.w, shape=(n_attributes,))
         object.__setattr__(self, "w", tuple(float(x) for x in w))

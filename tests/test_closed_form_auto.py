@@ -265,3 +265,12 @@ def test_bad_method_and_tol():
             choice_probabilities(m, 10, tol=bad)
     with pytest.raises(TypeError, match="tol must be a real number"):
         choice_probabilities(m, 10, tol="0.01")
+
+
+def test_exact_mixture_refuses_a_numerically_singular_noise():
+    # rho(S) = 3.8: after 20 steps the noise of P_1 - P_2 is lost to rounding
+    m = canonical(phi2=2.0)
+    with pytest.raises(ValueError, match=r"numerically singular .*use mdft.simulate"):
+        mixture_choice_probabilities(m, 20, n_sequences=2000, rng=0)
+    with pytest.raises(ValueError, match=r"numerically singular .*n_steps"):
+        choice_probabilities(m, 20)

@@ -211,7 +211,7 @@ def test_scenario_accepts_lists_and_normalises_to_tuples():
         (dict(name=""), TypeError, "name must be a non-empty string"),
         (dict(M=[[1, 3]], labels=("A",)), ValueError, "at least 2 options"),
         (dict(M=[1, 2, 3]), ValueError, "M must be a 2-d array"),
-        (dict(labels=("A", "B")), ValueError, "labels must have one entry per option, 3"),
+        (dict(labels=("A", "B")), ValueError, r"labels must have one entry per option \(row of M\), 3"),
         (dict(target=3), ValueError, r"target must hold option indices in \[0, 2\]"),
         (dict(target=1.0), TypeError, "target must hold integer option indices"),
         (dict(rivals=(2,)), ValueError, "rivals must be distinct options other than the target"),
