@@ -40,8 +40,9 @@ from ._numba import njit
 _SQRT2 = math.sqrt(2.0)
 # A window reaches this many component standard deviations around its mean.
 _WIDTH = 6.5
-# Target cells that would receive less than this are left out (and the row renormalised).
-_CUT = 1e-11
+# Target cells that would receive less than this are left out (and the row renormalised);
+# 1e-8 instead of 1e-11 drops a quarter of the nonzeros and changes answers by < 1e-5.
+_CUT = 1e-8
 # Status codes of build().
 OK = 0
 TOO_MANY_STATES = 1

@@ -35,7 +35,7 @@ logger = logging.getLogger(__name__)
 
 _MAX_OPTIONS = 3
 _METHODS = ("propagate", "solve")
-_DIRECT_SOLVE_MAX_STATES = 60_000
+_DIRECT_SOLVE_MAX_STATES = 3_000
 # Two options: lattice spacing at most this many per-step standard deviations, at least
 # this many cells per theta.
 _BINARY_SPACING = 0.5
@@ -233,19 +233,20 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         ``"propagate"`` applies the chain step by step and returns the
         response-time distribution; it stops early once the undecided mass is
         below ``tol`` or the geometric tail is reached (``tail_tol``).
-        ``"solve"`` solves ``(I - Q^T) y = x_1`` (sparse LU, or GMRES above
-        60,000 states) for the long-run (unlimited time) probabilities and
-        mean response times.
+        ``"solve"`` solves ``(I - Q^T) y = x_1`` (sparse LU up to 3,000
+        states, above that BiCGSTAB, with restarted GMRES if it fails) for
+        the long-run (unlimited time) probabilities and mean response times;
+        several times faster than ``"propagate"`` on large chains.
     tol : float, default 1e-10
         ``"propagate"``: undecided mass at which propagation stops.
-        ``"solve"``: relative residual of GMRES.
+        ``"solve"``: relative residual of the iterative solver.
     tail_tol : float, default 1e-7
         ``"propagate"``: once the undecided mass decays by a constant factor
         per step and the options' shares of each step's choices stay fixed
         (relative changes below ``tail_tol`` for 20 steps in a row), the rest
         of ``rt_pmf`` is filled in geometrically. 0 propagates every step.
     max_iter : int, default 2000
-        Iteration limit of GMRES, per right-hand side.
+        Iteration limit of the iterative solver, per right-hand side.
     max_states : int, default 100_000
         Largest chain the method may build; a model that needs more to meet
         the tolerances raises ValueError.
@@ -469,34 +470,39 @@ def _propagate(chain, max_steps, tol, tail_tol, common):
     )
 
 
+def _krylov(A, rhs, tol, max_iter):
+    """Solve ``A y = rhs`` by BiCGSTAB, then restarted GMRES if that fails; ``(y, ok, iters)``."""
+    counter = [0]
+
+    def callback(*_):
+        counter[0] += 1
+
+    y, info = spla.bicgstab(A, rhs, rtol=tol, atol=0.0, maxiter=max_iter, callback=callback)
+    if info == 0 and np.all(np.isfinite(y)):
+        return y, True, counter[0]
+    restart = min(50, max_iter)
+    y, info = spla.gmres(A, rhs, rtol=tol, atol=0.0, restart=restart,
+                         maxiter=-(-max_iter // restart), callback=callback,
+                         callback_type="pr_norm")
+    return y, info == 0 and bool(np.all(np.isfinite(y))), counter[0]
+
+
 def _solve(chain, tol, max_iter, common):
     n_states = chain.Q.shape[0]
-    A = (sp.identity(n_states, format="csc") - chain.Q.T).tocsc()
     b = np.zeros(n_states)
     np.add.at(b, chain.start_cols, chain.start_vals)
     converged = True
     n_iter = 0
     if n_states <= _DIRECT_SOLVE_MAX_STATES:
-        lu = spla.splu(A)
+        lu = spla.splu((sp.identity(n_states, format="csc") - chain.Q.T).tocsc())
         y = lu.solve(b)
         y2 = lu.solve(y)
     else:
-        ys = []
-        for rhs in (b, None):
-            rhs = b if rhs is not None else ys[0]
-            counter = [0]
-
-            def callback(_, counter=counter):
-                counter[0] += 1
-
-            restart = min(50, max_iter)
-            sol, info = spla.gmres(A, rhs, rtol=tol, atol=0.0, restart=restart,
-                                   maxiter=-(-max_iter // restart), callback=callback,
-                                   callback_type="pr_norm")
-            n_iter += counter[0]
-            converged = converged and info == 0
-            ys.append(sol)
-        y, y2 = ys
+        A = (sp.identity(n_states, format="csr") - chain.Q.T).tocsr()
+        y, ok1, it1 = _krylov(A, b, tol, max_iter)
+        y2, ok2, it2 = _krylov(A, y, tol, max_iter)
+        n_iter = it1 + it2
+        converged = ok1 and ok2
         if not converged:
             raise ValueError(
                 f"the iterative solver did not reach tol={tol:g} within max_iter={max_iter} "
