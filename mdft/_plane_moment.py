@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ._lattice import fill_tail, settle_count
 from ._numba import njit
 from ._plane import absorb3, classify, cut_mass, centroid, interval_mass, _CUT, _WIDTH
 
@@ -139,6 +140,22 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
 
 
 @njit
+def _grow(a, n, cap):
+    """``a`` (rows, 3 or 2 columns) with room for ``cap`` rows; the first ``n`` kept."""
+    b = np.zeros((cap, a.shape[1]))
+    b[:n] = a[:n]
+    return b
+
+
+@njit
+def _grow1(a, n, cap):
+    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept."""
+    b = np.zeros(cap)
+    b[:n] = a[:n]
+    return b
+
+
+@njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
           h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, ref, s_lo, s_hi, delta,
           max_states):
@@ -225,21 +242,11 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                         break
                     if n_states == pos.shape[0]:
                         cap = 2 * pos.shape[0]
-                        pos2 = np.empty((cap, 2))
-                        pos2[:n_states] = pos[:n_states]
-                        pos = pos2
-                        sr2 = np.empty(cap)
-                        sr2[:n_states] = sref[:n_states]
-                        sref = sr2
-                        sn2 = np.empty(cap)
-                        sn2[:n_states] = snext[:n_states]
-                        snext = sn2
-                        a0 = np.zeros((cap, 3))
-                        a0[:n_states] = ab0[:n_states]
-                        ab0 = a0
-                        a1 = np.zeros((cap, 3))
-                        a1[:n_states] = ab1[:n_states]
-                        ab1 = a1
+                        pos = _grow(pos, n_states, cap)
+                        ab0 = _grow(ab0, n_states, cap)
+                        ab1 = _grow(ab1, n_states, cap)
+                        sref = _grow1(sref, n_states, cap)
+                        snext = _grow1(snext, n_states, cap)
                         rp2 = np.zeros(cap + 1, dtype=np.int64)
                         rp2[:n_states + 1] = row_ptr[:n_states + 1]
                         row_ptr = rp2
@@ -262,12 +269,8 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                     c2a = np.empty(vcap, dtype=np.int64)
                     c2a[:n_vals] = cols[:n_vals]
                     cols = c2a
-                    v2a = np.empty(vcap)
-                    v2a[:n_vals] = t0[:n_vals]
-                    t0 = v2a
-                    v2b = np.empty(vcap)
-                    v2b[:n_vals] = t1[:n_vals]
-                    t1 = v2b
+                    t0 = _grow1(t0, n_vals, vcap)
+                    t1 = _grow1(t1, n_vals, vcap)
                 cols[n_vals] = t
                 t0[n_vals] = 0.5 * (vA + vB)
                 t1[n_vals] = (vB - vA) / (2.0 * d) if d > 0.0 else 0.0
@@ -364,20 +367,8 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
         ratio = new_mass / mass if mass > 0.0 else 0.0
         mass = new_mass
         if tail_tol > 0.0 and total > 0.0 and t > 1:
-            prev_total = rt_pmf[t - 1, 0] + rt_pmf[t - 1, 1] + rt_pmf[t - 1, 2]
-            calm = (prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
-                    and abs(total / prev_total - ratio) <= tail_tol * ratio)
-            if calm:
-                for i in range(3):
-                    if abs(rt_pmf[t, i] / total - rt_pmf[t - 1, i] / prev_total) > tail_tol:
-                        calm = False
-            count = count + 1 if calm else 0
+            count = settle_count(rt_pmf, t, total, ratio, prev_ratio, count, tail_tol)
             if count >= settle and ratio < 1.0:
-                factor = 1.0
-                for u2 in range(t + 1, n_steps):
-                    factor *= ratio
-                    for i in range(3):
-                        rt_pmf[u2, i] = rt_pmf[t, i] * factor
-                return steps, t + 1, mass * factor
+                return steps, t + 1, mass * fill_tail(rt_pmf, t, ratio)
         prev_ratio = ratio
     return steps, n_steps, mass
