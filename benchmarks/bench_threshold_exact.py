@@ -11,11 +11,22 @@ per model and then the median and maximum errors and times.
 
     python benchmarks/bench_threshold_exact.py                        # 20 ternary + 10 binary
     python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
+    python benchmarks/bench_threshold_exact.py --ternary 20 --binary 0 --live --cache /tmp/refs
+
+``--live`` adds a second, screened set of three-option models: draws (from
+another seed) whose simulation leaves more than half the trials undecided
+are redrawn, so every screened model decides. The unscreened draws include
+many models whose leakage keeps the preferences below theta, which must be
+answered with ``p_undecided`` near 1 or refused. ``--cache DIR`` stores the
+simulated references (keyed by model, threshold, trials, step limit and
+seed), so that re-running the benchmark times only the method.
 
 Errors are the largest difference in a choice probability (or in the
 undecided share) and the largest relative difference in a mean response time
-among options chosen in at least 1000 simulated trials; both include the
-simulation's own error (``se``: its largest standard error). A model the method
+among options chosen in at least 1000 simulated trials (``max dRT``) and among
+those chosen in at least 10 % of them (``dRT p>.1``, where the simulation's own
+relative error is below about 0.2 %); all include the simulation's own error
+(``se``: its largest standard error in a probability). A model the method
 cannot vouch for (ValueError) is counted and listed. Timings are wall-clock
 after compilation, on whatever else the machine is doing: quote them with the
 load average.
@@ -24,6 +35,8 @@ load average.
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import sys
 import time
@@ -51,22 +64,110 @@ def draw_model(rng, n_options):
     return model, theta
 
 
-def compare(model, theta, trials, max_steps, seed):
+class Reference:
+    """What the benchmark needs from a simulation (also what the cache stores)."""
+
+    def __init__(self, probabilities, p_undecided, mean_response_times, counts,
+                 standard_errors):
+        self.probabilities = np.asarray(probabilities, dtype=float)
+        self.p_undecided = float(p_undecided)
+        self.mean_response_times = np.asarray(mean_response_times, dtype=float)
+        self.counts = np.asarray(counts, dtype=np.int64)
+        self.standard_errors = np.asarray(standard_errors, dtype=float)
+
+
+def reference(model, theta, trials, max_steps, seed, cache):
+    """Simulated reference of one model, from ``cache`` (a directory) when stored there."""
+    key = json.dumps(dict(M=np.asarray(model.M).tolist(), w=np.asarray(model.w).tolist(),
+                          phi1=model.phi1, phi2=model.phi2, beta=model.beta,
+                          sigma2=model.sigma2, theta=theta, trials=trials,
+                          max_steps=max_steps, seed=seed), sort_keys=True)
+    path = None
+    if cache is not None:
+        path = Path(cache) / (hashlib.sha1(key.encode()).hexdigest()[:16] + ".json")
+        if path.exists():
+            return Reference(**json.loads(path.read_text())["result"])
+    sim = mdft.simulate(model, trials, stopping=mdft.Threshold(theta, max_steps=max_steps),
+                        rng=seed)
+    ref = Reference(sim.probabilities, sim.p_undecided, sim.mean_response_times, sim.counts,
+                    sim.standard_errors)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                for k, v in vars(ref).items()}
+        path.write_text(json.dumps(dict(key=json.loads(key), result=data)))
+    return ref
+
+
+def compare(model, theta, trials, max_steps, seed, cache=None):
     start = time.perf_counter()
     try:
         res = mdft.threshold_probabilities(model, theta, max_steps=max_steps)
     except ValueError as exc:
         return None, time.perf_counter() - start, str(exc)
     seconds = time.perf_counter() - start
-    sim = mdft.simulate(model, trials, stopping=mdft.Threshold(theta, max_steps=max_steps),
-                        rng=seed)
+    sim = reference(model, theta, trials, max_steps, seed, cache)
     dp = float(max(np.max(np.abs(res.probabilities - sim.probabilities)),
                    abs(res.p_undecided - sim.p_undecided)))
     se = float(np.max(sim.standard_errors))
-    drt = 0.0
+    drt = drt_major = 0.0
     for i in np.flatnonzero(sim.counts >= 1000):
-        drt = max(drt, abs(res.mean_response_times[i] / sim.mean_response_times[i] - 1.0))
-    return dict(dp=dp, se=se, drt=drt, res=res, sim=sim), seconds, ""
+        gap = abs(res.mean_response_times[i] / sim.mean_response_times[i] - 1.0)
+        drt = max(drt, gap)
+        if sim.counts[i] >= 0.1 * trials:
+            drt_major = max(drt_major, gap)
+    return dict(dp=dp, se=se, drt=drt, drt_major=drt_major, res=res, sim=sim), seconds, ""
+
+
+def screened_models(rng, count, trials, max_steps, seed, cache):
+    """``count`` three-option draws whose simulation decides in at least half the trials."""
+    out = []
+    while len(out) < count:
+        model, theta = draw_model(rng, 3)
+        probe = mdft.simulate(model, 2_000, stopping=mdft.Threshold(theta, max_steps=max_steps),
+                              rng=seed)
+        if probe.p_undecided > 0.6:
+            continue
+        sim = reference(model, theta, trials, max_steps, seed + 1000 + len(out), cache)
+        if sim.p_undecided <= 0.5:
+            out.append((model, theta, seed + 1000 + len(out)))
+    return out
+
+
+def run_set(label, models, n_options, args):
+    """Benchmark one set of models; print a line per model and a summary line."""
+    rows, refused = [], []
+    print(f"\n{label}")
+    print(f"{'#':>3} {'theta':>6} {'sigma2':>6} {'states':>7} {'time s':>7} {'max|dp|':>8} "
+          f"{'se':>7} {'est dp':>8} {'max dRT':>8} {'dRT p>.1':>8} {'est dRT':>8}  "
+          "p (chain) / p (simulation)")
+    for k, (model, theta, seed) in enumerate(models):
+        out, seconds, why = compare(model, theta, args.trials, args.max_steps, seed,
+                                    args.cache)
+        if out is None:
+            refused.append((k, theta, model.sigma2, seconds, why))
+            print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.2f} s: "
+                  f"{why[:110]}")
+            continue
+        res, sim = out["res"], out["sim"]
+        rows.append((out["dp"], out["drt"], seconds, out["se"], out["drt_major"]))
+        print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {res.n_states:>7} {seconds:7.2f} "
+              f"{out['dp']:8.4f} {out['se']:7.4f} {res.error_probabilities:8.1e} "
+              f"{out['drt']:8.4f} {out['drt_major']:8.4f} {res.error_mean_rt:8.1e}  "
+              f"{np.round(res.probabilities, 4)} u={res.p_undecided:.3f} / "
+              f"{np.round(sim.probabilities, 4)} u={sim.p_undecided:.3f}", flush=True)
+    times = [r[2] for r in rows] + [r[3] for r in refused]
+    if rows:
+        a = np.array(rows)
+        print(f"{label}: {len(rows)} models answered, {len(refused)} refused: "
+              f"|dp| median {np.median(a[:, 0]):.4f} max {a[:, 0].max():.4f} "
+              f"(simulation se up to {a[:, 3].max():.4f}); "
+              f"|dRT| median {np.median(a[:, 1]):.4f} max {a[:, 1].max():.4f} "
+              f"(options with p > 0.1: max {a[:, 4].max():.4f}); "
+              f"time (answered and refused) median {np.median(times):.2f} s "
+              f"max {np.max(times):.2f} s")
+    elif refused:
+        print(f"{label}: all {len(refused)} refused")
 
 
 def main(argv=None):
@@ -76,6 +177,10 @@ def main(argv=None):
     parser.add_argument("--trials", type=int, default=1_000_000, help="simulated trials")
     parser.add_argument("--max-steps", type=int, default=3_000, help="step limit (both)")
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--live", action="store_true",
+                        help="add a screened set of three-option models that decide")
+    parser.add_argument("--cache", default=None,
+                        help="directory that stores the simulated references")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(args.seed)
     print(f"load average {os.getloadavg()[0]:.2f}; {args.trials} simulated trials per model; "
@@ -87,36 +192,17 @@ def main(argv=None):
             mdft.threshold_probabilities(m, 5.0, max_steps=50)
         except ValueError:
             pass
-    for n_options, count in ((3, args.ternary), (2, args.binary)):
-        rows, refused = [], []
-        print(f"\n{n_options} options")
-        print(f"{'#':>3} {'theta':>6} {'sigma2':>6} {'states':>7} {'time s':>7} {'max|dp|':>8} "
-              f"{'se':>7} {'est dp':>8} {'max dRT':>8} {'est dRT':>8}  p (chain) / p (simulation)")
-        for k in range(count):
-            model, theta = draw_model(rng, n_options)
-            out, seconds, why = compare(model, theta, args.trials, args.max_steps,
-                                        args.seed + k)
-            if out is None:
-                refused.append((k, theta, model.sigma2, seconds, why))
-                print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.1f} s: "
-                      f"{why[:110]}")
-                continue
-            res, sim = out["res"], out["sim"]
-            rows.append((out["dp"], out["drt"], seconds, out["se"]))
-            print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {res.n_states:>7} {seconds:7.2f} "
-                  f"{out['dp']:8.4f} {out['se']:7.4f} {res.error_probabilities:8.1e} "
-                  f"{out['drt']:8.4f} {res.error_mean_rt:8.1e}  "
-                  f"{np.round(res.probabilities, 4)} / {np.round(sim.probabilities, 4)}")
-        if rows:
-            a = np.array(rows)
-            print(f"{n_options} options, {len(rows)} models answered, {len(refused)} refused: "
-                  f"|dp| median {np.median(a[:, 0]):.4f} max {a[:, 0].max():.4f} "
-                  f"(simulation se up to {a[:, 3].max():.4f}); "
-                  f"|dRT| median {np.median(a[:, 1]):.4f} max {a[:, 1].max():.4f}; "
-                  f"time median {np.median(a[:, 2]):.2f} s max {a[:, 2].max():.2f} s")
-        if refused:
-            times = [r[3] for r in refused]
-            print(f"refused models took median {np.median(times):.1f} s to refuse")
+    ternary = [(*draw_model(rng, 3), args.seed + k) for k in range(args.ternary)]
+    binary = [(*draw_model(rng, 2), args.seed + args.ternary + k) for k in range(args.binary)]
+    if ternary:
+        run_set("3 options, unscreened", ternary, 3, args)
+    if args.live:
+        live = screened_models(np.random.default_rng(args.seed + 1), args.ternary, args.trials,
+                               args.max_steps, args.seed, args.cache)
+        run_set("3 options, screened (simulation decides in at least half the trials)", live,
+                3, args)
+    if binary:
+        run_set("2 options", binary, 2, args)
     print(f"load average {os.getloadavg()[0]:.2f}")
 
 

@@ -454,24 +454,38 @@ def propagate(row_ptr, cols, vals, absorb, x, rt_pmf, tol, tail_tol):
         ratio = new_mass / mass if mass > 0.0 else 0.0
         mass = new_mass
         if tail_tol > 0.0 and total > 0.0 and t > 1:
-            prev_total = 0.0
-            for i in range(n):
-                prev_total += rt_pmf[t - 1, i]
-            # in the slowest mode the step's choices decay at the rate of the undecided mass;
-            # before it (mass still on its way to the thresholds) they grow
-            calm = (prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
-                    and abs(total / prev_total - ratio) <= tail_tol * ratio)
-            if calm:
-                for i in range(n):
-                    if abs(rt_pmf[t, i] / total - rt_pmf[t - 1, i] / prev_total) > tail_tol:
-                        calm = False
-            settled = settled + 1 if calm else 0
+            settled = settle_count(rt_pmf, t, total, ratio, prev_ratio, settled, tail_tol)
             if settled >= _SETTLE and ratio < 1.0:
-                factor = 1.0
-                for u in range(t + 1, n_steps):
-                    factor *= ratio
-                    for i in range(n):
-                        rt_pmf[u, i] = rt_pmf[t, i] * factor
-                return steps, t + 1, mass * factor
+                return steps, t + 1, mass * fill_tail(rt_pmf, t, ratio)
         prev_ratio = ratio
     return steps, n_steps, mass
+
+
+@njit
+def settle_count(rt_pmf, t, total, ratio, prev_ratio, settled, tail_tol):
+    """Consecutive settled steps up to step ``t`` (``total``: its choices; ``ratio``:
+    its decay of the undecided mass), given ``settled`` up to step ``t - 1``."""
+    n = rt_pmf.shape[1]
+    prev_total = 0.0
+    for i in range(n):
+        prev_total += rt_pmf[t - 1, i]
+    # in the slowest mode the step's choices decay at the rate of the undecided mass;
+    # before it (mass still on its way to the thresholds) they grow
+    calm = (prev_total > 0.0 and abs(ratio - prev_ratio) <= tail_tol * ratio
+            and abs(total / prev_total - ratio) <= tail_tol * ratio)
+    if calm:
+        for i in range(n):
+            if abs(rt_pmf[t, i] / total - rt_pmf[t - 1, i] / prev_total) > tail_tol:
+                calm = False
+    return settled + 1 if calm else 0
+
+
+@njit
+def fill_tail(rt_pmf, t, ratio):
+    """Fill the rows after ``t`` geometrically; returns the undecided mass's factor."""
+    factor = 1.0
+    for u in range(t + 1, rt_pmf.shape[0]):
+        factor *= ratio
+        for i in range(rt_pmf.shape[1]):
+            rt_pmf[u, i] = rt_pmf[t, i] * factor
+    return factor

@@ -1,22 +1,24 @@
-"""The plane chain of three-option threshold stopping.
+"""The moment chain of three-option threshold stopping.
 
-Python side of the compiled kernels in :mod:`mdft._plane`: chooses the grid
-from the model and a resolution ``kappa`` (cell size in per-step standard
-deviations), applies the variance correction, and builds the chain. Inputs are
-validated by :func:`mdft.threshold_probabilities`; ``docs/threshold_exact.md``
-describes the method.
+Python side of the compiled kernels in :mod:`mdft._plane_moment`: chooses
+the grid of the zero-sum plane from the model and a resolution ``kappa``
+(cell size in per-step standard deviations), applies the variance correction,
+builds and runs the chain, and fits the reference sums for the next pass.
+Inputs are validated by :func:`mdft.threshold_probabilities`;
+``docs/threshold_exact.md`` describes the method.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
-from . import _lattice, _plane
-from ._lattice_chain import Chain, pair_parameters, sum_bounds, sum_is_constant
+from . import _lattice, _plane_moment
+from ._lattice_chain import pair_parameters, sum_bounds, sum_is_constant
 
 logger = logging.getLogger(__name__)
 
@@ -24,8 +26,9 @@ logger = logging.getLogger(__name__)
 _MIN_SD_CELLS = 0.5
 # At least this many cells per theta along each axis (kappa = 1).
 _MIN_CELLS_PER_THETA = 6.0
-# Levels of the summed preference are this many times the finer cell size.
-_LEVEL_FACTOR = 3.0
+# Spacing (in finer cells) of the summed-preference levels that plane_geometry reports; the
+# moment chain only uses their count (more than one: the feedback moves the sum).
+_LEVEL_FACTOR = 1.0
 # Largest index box (levels x cells x cells) the builder may allocate.
 _MAX_BOX = 40_000_000
 
@@ -34,8 +37,12 @@ class TooManyStates(ValueError):
     """The resolution asked for more states than the budget allows."""
 
 
-def plane_geometry(model, theta, kappa):
-    """Grid, corrected kernel and absorption parameters for resolution ``kappa``."""
+def plane_geometry(model, theta, kappa, margin=0.0):
+    """Grid, corrected kernel and absorption parameters for resolution ``kappa``.
+
+    The grid covers the transient region down to a summed preference ``margin``
+    below its lower bound.
+    """
     C = np.asarray(model.C, dtype=np.float64)
     S = np.ascontiguousarray(model.S, dtype=np.float64)
     B = np.linalg.qr(np.eye(3) - 1.0 / 3.0)[0][:, :2]
@@ -71,7 +78,7 @@ def plane_geometry(model, theta, kappa):
     shrunk = np.ascontiguousarray(abar_ax[:, None] + gam[:, None] * (A_ax - abar_ax[:, None]))
     s0 = float(np.sum(model.P0))
     if sum_is_constant(S, s0):
-        s_lo, hs, n_levels = s0, 1.0, 1
+        s_lo, s_hi, hs, n_levels = s0, s0, 1.0, 1
     else:
         s_lo, s_hi = sum_bounds(S, theta, s0)
         if s_hi >= 3 * theta - 1e-9:
@@ -82,7 +89,7 @@ def plane_geometry(model, theta, kappa):
         hs = _LEVEL_FACTOR * h.min()
         n_levels = max(2, int(math.ceil((s_hi - s_lo) / hs)) + 1)
         hs = (s_hi - s_lo) / (n_levels - 1)
-    verts = theta * np.ones((3, 3)) - (3 * theta - s_lo) * np.eye(3)
+    verts = theta * np.ones((3, 3)) - (3 * theta - (s_lo - margin)) * np.eye(3)
     zv = verts @ E
     first = np.floor(zv.min(axis=0) / h)
     o = first * h
@@ -95,39 +102,137 @@ def plane_geometry(model, theta, kappa):
         shrunk=shrunk, sd_cell=np.sqrt(v_cell), exact=np.ascontiguousarray(A_ax),
         sd_exact=np.sqrt(v), theta=float(theta), o1=float(o[0]), o2=float(o[1]),
         h1=float(h[0]), h2=float(h[1]), n1=int(nn[0]), n2=int(nn[1]), s_lo=float(s_lo),
-        hs=float(hs), n_levels=int(n_levels), sd_opt=sd_opt, pair_sd=pair_sd,
+        hs=float(hs), n_levels=int(n_levels), s_hi=float(s_hi), sd_opt=sd_opt, pair_sd=pair_sd,
         pair_rho=pair_rho,
     )
 
 
-def build_plane_chain(model, theta, kappa, max_states):
-    """The plane chain at resolution ``kappa``; ``(chain, spacing, max_gap)``.
+# ------------------------------------------------------------------ moment chain
+@dataclass(frozen=True)
+class MomentChain:
+    """The moment chain (:mod:`mdft._plane_moment`): rows ``T0 + (s - sref) T1`` (CSR
+    arrays), choices ``R0 + (s - sref) R1``, and the first step from the exact start."""
 
-    Raises TooManyStates when the reachable states exceed ``max_states``.
+    row_ptr: np.ndarray
+    cols: np.ndarray
+    t0: np.ndarray
+    t1: np.ndarray
+    r0: np.ndarray
+    r1: np.ndarray
+    pos: np.ndarray
+    sref: np.ndarray
+    snext: np.ndarray
+    b_sum: float
+    start_cols: np.ndarray
+    start_vals: np.ndarray
+    start_absorbed: np.ndarray
+    start_snext: float
+    h: tuple
+    moving: bool
+
+    @property
+    def n_states(self):
+        return self.pos.shape[0]
+
+
+def build_moment_chain(model, theta, kappa, ref, delta, max_states):
+    """The moment chain at resolution ``kappa`` with reference sums ``ref`` (see
+    :func:`mdft._plane_moment.build`) and spread ``delta``.
+
+    Raises TooManyStates when the reachable states exceed ``max_states`` or a
+    step lands outside every cell.
     """
-    g = plane_geometry(model, theta, kappa)
-    box = g["n_levels"] * g["n1"] * g["n2"]
+    g = plane_geometry(model, theta, kappa, margin=2.0 * delta + 1.0)
+    moving = g["n_levels"] > 1
+    if not moving:
+        ref, delta = np.array([g["s_start"], 0.0, 0.0]), 0.0
+    box = g["n1"] * g["n2"]
     if box > _MAX_BOX:
         raise TooManyStates(
             f"resolution {kappa:.3g} needs an index box of {box} cells (limit {_MAX_BOX})"
         )
-    out = _plane.build(
+    out = _plane_moment.build(
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],
-        g["n2"], g["s_lo"], g["hs"], g["n_levels"], g["sd_opt"], g["pair_sd"], g["pair_rho"],
-        _lattice._GL_X, _lattice._GL_W, max_states,
+        g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], _lattice._GL_X, _lattice._GL_W,
+        np.asarray(ref, dtype=np.float64), g["s_lo"], g["s_hi"], float(delta), max_states,
     )
-    (status, pos, lev, row_ptr, cols, vals, absorb, start_cols, start_vals, start_abs,
-     max_gap, n_fallback) = out
-    if status == _plane.TOO_MANY_STATES:
-        raise TooManyStates(
-            f"resolution {kappa:.3g} reaches more than {max_states} states"
-        )
-    n_states = pos.shape[0]
-    Q = sp.csr_matrix((vals, cols, row_ptr), shape=(n_states, n_states))
-    chain = Chain(Q, absorb, start_cols, start_vals, start_abs,
-                  int(np.unique(lev).size) if n_states else 0)
-    lost = status == _plane.LOST_MASS
-    logger.debug("plane chain: kappa %.3g, %d states, %d nonzeros, %d levels, %d fallbacks, "
-                 "lost mass %s", kappa, n_states, Q.nnz, g["n_levels"], n_fallback, lost)
-    return chain, (g["h1"], g["h2"]), lost
+    (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
+     start_abs, start_snext) = out
+    if status == _plane_moment.TOO_MANY_STATES:
+        raise TooManyStates(f"resolution {kappa:.3g} reaches more than {max_states} states")
+    if status == _plane_moment.LOST_MASS:
+        raise TooManyStates(f"at resolution {kappa:.3g} some step lands outside every grid cell")
+    b_sum = float(g["S"].sum()) / 3.0
+    logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
+                 kappa, pos.shape[0], cols.shape[0], delta)
+    return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext, b_sum, start_cols,
+                       start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving)
+
+
+def propagate_moments(chain, max_steps, tol, tail_tol):
+    """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation)``."""
+    n = chain.n_states
+    x = np.zeros(n)
+    np.add.at(x, chain.start_cols, chain.start_vals)
+    m = x * chain.start_snext
+    q = x * chain.start_snext**2
+    rt_pmf = np.zeros((max_steps, 3))
+    rt_pmf[0] = chain.start_absorbed
+    occ = np.zeros((n, 3))
+    steps, tail_start, mass = _plane_moment.propagate(
+        chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
+        chain.snext, chain.b_sum, x, m, q, rt_pmf, occ, tol, tail_tol, _lattice._SETTLE)
+    # the linearised choices can dip below zero by rounding-sized amounts where a state's
+    # mean sum lies far from its reference; a probability is never negative
+    np.maximum(rt_pmf, 0.0, out=rt_pmf)
+    return rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start), occ
+
+
+def reference_sums(chain, occ):
+    """Reference-sum map ``(r0, r1, r2)`` and spread ``delta`` for the next pass.
+
+    A weighted least-squares fit of the states' mean sums on their positions
+    (weights: occupation), and the root of the occupation-weighted mean of the
+    sum's variance within the states.
+    """
+    wx = occ[:, 0]
+    good = wx > 1e-12 * max(wx.sum(), 1e-300)
+    if not chain.moving or good.sum() < 3:
+        return np.array([chain.start_snext if chain.moving else 0.0, 0.0, 0.0]), 0.0
+    W = wx[good]
+    mean = occ[good, 1] / W
+    var = np.clip(occ[good, 2] / W - mean**2, 0.0, None)
+    X = np.c_[np.ones(W.size), chain.pos[good]]
+    root = np.sqrt(W)
+    coef = np.linalg.lstsq(X * root[:, None], mean * root, rcond=None)[0]
+    delta = float(np.sqrt(np.sum(W * var) / W.sum()))
+    return coef, delta
+
+
+def solve_moments(chain, tol, max_iter, krylov):
+    """Long-run probabilities and weighted times of the moment chain (linear solves)."""
+    n = chain.n_states
+    T0 = sp.csr_matrix((chain.t0, chain.cols, chain.row_ptr), shape=(n, n))
+    T1 = sp.csr_matrix((chain.t1, chain.cols, chain.row_ptr), shape=(n, n))
+    Dr = sp.diags(chain.sref)
+    Dn = sp.diags(chain.snext)
+    b = chain.b_sum
+    # new (x, m) = G (x, m): see the module docstring of mdft._plane_moment
+    G = sp.bmat([[T0.T - T1.T @ Dr, T1.T],
+                 [T0.T @ (Dn - b * Dr) - T1.T @ (Dn @ Dr), b * T0.T + T1.T @ Dn]]).tocsr()
+    A = (sp.identity(2 * n, format="csr") - G).tocsr()
+    x1 = np.zeros(n)
+    np.add.at(x1, chain.start_cols, chain.start_vals)
+    rhs = np.concatenate([x1, x1 * chain.start_snext])
+    y, ok1, it1 = krylov(A, rhs, tol, max_iter)
+    y2, ok2, it2 = krylov(A, y, tol, max_iter)
+    Rx = chain.r0 - chain.r1 * chain.sref[:, None]
+    Rm = chain.r1
+
+    def absorbed(v):
+        return Rx.T @ v[:n] + Rm.T @ v[n:]
+
+    probs = np.maximum(chain.start_absorbed + absorbed(y), 0.0)
+    weighted = np.maximum(chain.start_absorbed + absorbed(y + y2), 0.0)
+    return probs, weighted, it1 + it2, ok1 and ok2

@@ -1,0 +1,374 @@
+"""Compiled kernels of the moment chain for three options (:mod:`mdft.threshold_exact`).
+
+Nothing here validates its input. The states are cells of the zero-sum plane
+only; instead of levels of the summed preference ``s = 1^T P``, every state
+carries, besides its probability ``x``, the first moment ``m = E[s 1{state}]``
+of the sum. A state's transition depends on ``s`` (through the thresholds and,
+slightly, through ``S``); it is evaluated at ``s_ref - delta`` and
+``s_ref + delta`` around the state's reference sum, and applied as their mean
+(``T0``) plus the slope (``T1``) times the state's deviation from ``s_ref``:
+exact to first order in the deviation, with the two-point mean standing for a
+spread ``delta`` of the sum within the state.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._lattice import fill_tail, settle_count
+from ._numba import njit
+from ._plane import absorb3, classify, cut_mass, centroid, interval_mass, _CUT, _WIDTH
+
+# A step whose staying mass finds no cell (every candidate below the kernel cut) may count
+# it as chosen when it is below this; otherwise the resolution is refused.
+_NEGLIGIBLE = 1e-7
+OK = 0
+TOO_MANY_STATES = 1
+LOST_MASS = 2
+
+
+@njit
+def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2, h1, h2,
+         n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, scratch, tmp, p1, p2, absorbed, box):
+    """One source at ``(z, s)``: choices into ``absorbed``, staying mass added to ``scratch``
+    (its bounding box in ``box``); returns ``(s_next, lost)``."""
+    J = w.shape[0]
+    part = np.zeros(3)
+    muP = np.empty(3)
+    ex = E[:, 0].copy()
+    ey = E[:, 1].copy()
+    P0 = E[0, 0] * z1 + E[0, 1] * z2 + s / 3.0
+    P1 = E[1, 0] * z1 + E[1, 1] * z2 + s / 3.0
+    P2 = E[2, 0] * z1 + E[2, 1] * z2 + s / 3.0
+    m0 = S[0, 0] * P0 + S[0, 1] * P1 + S[0, 2] * P2
+    m1 = S[1, 0] * P0 + S[1, 1] * P1 + S[1, 2] * P2
+    m2 = S[2, 0] * P0 + S[2, 1] * P1 + S[2, 2] * P2
+    s_next = m0 + m1 + m2
+    zm1 = E[0, 0] * m0 + E[1, 0] * m1 + E[2, 0] * m2
+    zm2 = E[0, 1] * m0 + E[1, 1] * m1 + E[2, 1] * m2
+    bound = theta - s_next / 3.0
+    lost = False
+    for i in range(3):
+        absorbed[i] = 0.0
+    for j in range(J):
+        if w[j] <= 0.0:
+            continue
+        muP[0] = m0 + CM[0, j]
+        muP[1] = m1 + CM[1, j]
+        muP[2] = m2 + CM[2, j]
+        for i in range(3):
+            part[i] = 0.0
+        p_abs = absorb3(muP, theta, sd_opt, pair_sd, pair_rho, part, gl_x, gl_w)
+        stay = 1.0 - p_abs
+        if stay <= 1e-14:
+            for i in range(3):
+                absorbed[i] += w[j] * part[i] / p_abs
+            continue
+        inside = 0.0
+        lo1 = 0
+        hi1 = -1
+        lo2 = 0
+        hi2 = -1
+        for attempt in range(2):
+            if attempt == 0:
+                mu1 = zm1 + shrunk[0, j]
+                mu2 = zm2 + shrunk[1, j]
+                sd1 = sd_cell[0]
+                sd2 = sd_cell[1]
+            else:
+                for a in range(lo1, hi1 + 1):
+                    for b in range(lo2, hi2 + 1):
+                        tmp[a, b] = 0.0
+                mu1 = zm1 + exact[0, j]
+                mu2 = zm2 + exact[1, j]
+                sd1 = sd_exact[0]
+                sd2 = sd_exact[1]
+            lo1 = max(int(math.floor((mu1 - _WIDTH * sd1 - o1) / h1 + 0.5)), 0)
+            hi1 = min(int(math.floor((mu1 + _WIDTH * sd1 - o1) / h1 + 0.5)), n1 - 1)
+            lo2 = max(int(math.floor((mu2 - _WIDTH * sd2 - o2) / h2 + 0.5)), 0)
+            hi2 = min(int(math.floor((mu2 + _WIDTH * sd2 - o2) / h2 + 0.5)), n2 - 1)
+            inside = 0.0
+            for a in range(lo1, hi1 + 1):
+                c1 = o1 + a * h1
+                p1[a] = interval_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, mu1, sd1)
+            for b in range(lo2, hi2 + 1):
+                c2 = o2 + b * h2
+                p2[b] = interval_mass(c2 - 0.5 * h2, c2 + 0.5 * h2, mu2, sd2)
+            for a in range(lo1, hi1 + 1):
+                c1 = o1 + a * h1
+                for b in range(lo2, hi2 + 1):
+                    tmp[a, b] = 0.0
+                    v = p1[a] * p2[b]
+                    if v < _CUT:
+                        continue
+                    c2 = o2 + b * h2
+                    kind = classify(c1, c2, h1, h2, E, bound)
+                    if kind == 2:
+                        continue
+                    if kind == 1:
+                        v = cut_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
+                                     c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound,
+                                     gl_x, gl_w)
+                        if v < _CUT:
+                            continue
+                    tmp[a, b] = v
+                    inside += v
+            if inside >= 0.5 * stay:
+                break
+        if inside <= 0.0:
+            if stay < _NEGLIGIBLE and p_abs > 0.0:
+                # no cell keeps the sliver that stays: count it with the choices
+                for i in range(3):
+                    absorbed[i] += w[j] * part[i] / p_abs
+            else:
+                lost = True
+            continue
+        scale = w[j] * stay / inside
+        for a in range(lo1, hi1 + 1):
+            for b in range(lo2, hi2 + 1):
+                scratch[a, b] += scale * tmp[a, b]
+                tmp[a, b] = 0.0
+        box[0] = min(box[0], lo1)
+        box[1] = max(box[1], hi1)
+        box[2] = min(box[2], lo2)
+        box[3] = max(box[3], hi2)
+        for i in range(3):
+            absorbed[i] += w[j] * part[i]
+    return s_next, lost
+
+
+@njit
+def _grow(a, n, cap):
+    """``a`` (rows, 3 or 2 columns) with room for ``cap`` rows; the first ``n`` kept."""
+    b = np.zeros((cap, a.shape[1]))
+    b[:n] = a[:n]
+    return b
+
+
+@njit
+def _grow1(a, n, cap):
+    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept."""
+    b = np.zeros(cap)
+    b[:n] = a[:n]
+    return b
+
+
+@njit
+def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
+          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, ref, s_lo, s_hi, delta,
+          max_states):
+    """Discover the reachable cells from the exact start and build the moment chain.
+
+    ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
+    ``r0 + r1 z1 + r2 z2``, clipped to ``[s_lo, s_hi]``. Returns ``(status,
+    pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
+    start_abs, start_snext)``.
+    """
+    index = np.full((n1, n2), -1, dtype=np.int64)
+    cap = 1024
+    pos = np.empty((cap, 2))
+    sref = np.empty(cap)
+    snext = np.empty(cap)
+    n_states = 0
+    vcap = 1 << 16
+    cols = np.empty(vcap, dtype=np.int64)
+    t0 = np.empty(vcap)
+    t1 = np.empty(vcap)
+    row_ptr = np.zeros(cap + 1, dtype=np.int64)
+    ab0 = np.zeros((cap, 3))
+    ab1 = np.zeros((cap, 3))
+    n_vals = 0
+    sA = np.zeros((n1, n2))
+    sB = np.zeros((n1, n2))
+    tmp = np.zeros((n1, n2))
+    p1 = np.zeros(n1)
+    p2 = np.zeros(n2)
+    aA = np.zeros(3)
+    aB = np.zeros(3)
+    box = np.zeros(4, dtype=np.int64)
+    start_cols = np.empty(0, dtype=np.int64)
+    start_vals = np.empty(0)
+    start_abs = np.zeros(3)
+    start_snext = 0.0
+    status = OK
+    r = -1
+    while r < n_states:
+        if r < 0:
+            z1 = z_start[0]
+            z2 = z_start[1]
+            s_mid = s_start
+            d = 0.0
+        else:
+            z1 = pos[r, 0]
+            z2 = pos[r, 1]
+            s_mid = sref[r]
+            d = delta
+        box[0] = n1
+        box[1] = -1
+        box[2] = n2
+        box[3] = -1
+        snA, lostA = _row(z1, z2, s_mid - d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact,
+                          theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w,
+                          sA, tmp, p1, p2, aA, box)
+        if d > 0.0:
+            snB, lostB = _row(z1, z2, s_mid + d, S, E, CM, w, shrunk, sd_cell, exact,
+                              sd_exact, theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd,
+                              pair_rho, gl_x, gl_w, sB, tmp, p1, p2, aB, box)
+        else:
+            snB = snA
+            lostB = lostA
+            for i in range(3):
+                aB[i] = aA[i]
+            for a in range(box[0], box[1] + 1):
+                for b in range(box[2], box[3] + 1):
+                    sB[a, b] = sA[a, b]
+        if lostA or lostB:
+            status = LOST_MASS
+        row_start = n_vals
+        for a in range(box[0], box[1] + 1):
+            for b in range(box[2], box[3] + 1):
+                vA = sA[a, b]
+                vB = sB[a, b]
+                if vA == 0.0 and vB == 0.0:
+                    continue
+                sA[a, b] = 0.0
+                sB[a, b] = 0.0
+                t = index[a, b]
+                if t < 0:
+                    if n_states >= max_states:
+                        status = TOO_MANY_STATES
+                        break
+                    if n_states == pos.shape[0]:
+                        cap = 2 * pos.shape[0]
+                        pos = _grow(pos, n_states, cap)
+                        ab0 = _grow(ab0, n_states, cap)
+                        ab1 = _grow(ab1, n_states, cap)
+                        sref = _grow1(sref, n_states, cap)
+                        snext = _grow1(snext, n_states, cap)
+                        rp2 = np.zeros(cap + 1, dtype=np.int64)
+                        rp2[:n_states + 1] = row_ptr[:n_states + 1]
+                        row_ptr = rp2
+                    c1 = o1 + a * h1
+                    c2 = o2 + b * h2
+                    sr = min(max(ref[0] + ref[1] * c1 + ref[2] * c2, s_lo), s_hi)
+                    lb = theta - sr / 3.0
+                    g1 = c1
+                    g2 = c2
+                    if classify(c1, c2, h1, h2, E, lb) == 1:
+                        g1, g2, _ok = centroid(c1, c2, h1, h2, E, lb)
+                    pos[n_states, 0] = g1
+                    pos[n_states, 1] = g2
+                    sref[n_states] = min(max(ref[0] + ref[1] * g1 + ref[2] * g2, s_lo), s_hi)
+                    t = n_states
+                    index[a, b] = t
+                    n_states += 1
+                if n_vals == cols.shape[0]:
+                    vcap = 2 * cols.shape[0]
+                    c2a = np.empty(vcap, dtype=np.int64)
+                    c2a[:n_vals] = cols[:n_vals]
+                    cols = c2a
+                    t0 = _grow1(t0, n_vals, vcap)
+                    t1 = _grow1(t1, n_vals, vcap)
+                cols[n_vals] = t
+                t0[n_vals] = 0.5 * (vA + vB)
+                t1[n_vals] = (vB - vA) / (2.0 * d) if d > 0.0 else 0.0
+                n_vals += 1
+            if status == TOO_MANY_STATES:
+                break
+        if status == TOO_MANY_STATES:
+            break
+        if r < 0:
+            start_cols = cols[row_start:n_vals].copy()
+            start_vals = t0[row_start:n_vals].copy()
+            n_vals = row_start
+            for i in range(3):
+                start_abs[i] = aA[i]
+            start_snext = snA
+        else:
+            row_ptr[r + 1] = n_vals
+            for i in range(3):
+                ab0[r, i] = 0.5 * (aA[i] + aB[i])
+                ab1[r, i] = (aB[i] - aA[i]) / (2.0 * d) if d > 0.0 else 0.0
+            snext[r] = 0.5 * (snA + snB)
+        r += 1
+    return (status, pos[:n_states].copy(), sref[:n_states].copy(), snext[:n_states].copy(),
+            row_ptr[:n_states + 1].copy(), cols[:n_vals].copy(), t0[:n_vals].copy(),
+            t1[:n_vals].copy(), ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols,
+            start_vals, start_abs, start_snext)
+
+
+@njit
+def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_pmf, occ, tol,
+              tail_tol, settle):
+    """Apply the moment chain step by step (see the module docstring).
+
+    ``x``, ``m`` and ``q`` (probability, first and second moment of the sum on
+    each state) are updated in place; ``q`` only estimates the spread of the
+    sum (the next pass's ``delta``) and is carried by ``T0`` alone, which keeps
+    it stable; ``snext[r]`` is the next sum from state
+    ``r`` at its reference sum and ``b_sum`` its slope in the current sum.
+    ``occ[:, k]`` accumulates the occupation of ``x``, ``m`` and ``q`` over the
+    steps (for the next pass's reference sums and spread). Returns
+    ``(steps, tail_start, mass)``.
+    """
+    n_states = x.shape[0]
+    n_steps = rt_pmf.shape[0]
+    y = np.zeros(n_states)
+    ym = np.zeros(n_states)
+    yq = np.zeros(n_states)
+    mass = 0.0
+    for r in range(n_states):
+        mass += x[r]
+    steps = 1
+    prev_ratio = -1.0
+    count = 0
+    bb = b_sum * b_sum
+    for t in range(1, n_steps):
+        if mass < tol:
+            return steps, n_steps, mass
+        for i in range(3):
+            rt_pmf[t, i] = 0.0
+        for r in range(n_states):
+            xr = x[r]
+            if xr == 0.0 and m[r] == 0.0:
+                continue
+            occ[r, 0] += xr
+            occ[r, 1] += m[r]
+            occ[r, 2] += q[r]
+            sr = sref[r]
+            u = m[r] - sr * xr
+            v = q[r] - 2.0 * sr * m[r] + sr * sr * xr
+            for i in range(3):
+                rt_pmf[t, i] += ab0[r, i] * xr + ab1[r, i] * u
+            sn = snext[r]
+            carry = sn * xr + b_sum * u
+            cu = sn * u
+            q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
+            for k in range(row_ptr[r], row_ptr[r + 1]):
+                c = cols[k]
+                a0 = t0[k]
+                a1 = t1[k]
+                y[c] += a0 * xr + a1 * u
+                ym[c] += a0 * carry + a1 * cu
+                yq[c] += a0 * q0
+        new_mass = 0.0
+        for r in range(n_states):
+            x[r] = y[r]
+            m[r] = ym[r]
+            q[r] = yq[r]
+            y[r] = 0.0
+            ym[r] = 0.0
+            yq[r] = 0.0
+            new_mass += x[r]
+        total = rt_pmf[t, 0] + rt_pmf[t, 1] + rt_pmf[t, 2]
+        steps = t + 1
+        ratio = new_mass / mass if mass > 0.0 else 0.0
+        mass = new_mass
+        if tail_tol > 0.0 and total > 0.0 and t > 1:
+            count = settle_count(rt_pmf, t, total, ratio, prev_ratio, count, tail_tol)
+            if count >= settle and ratio < 1.0:
+                return steps, t + 1, mass * fill_tail(rt_pmf, t, ratio)
+        prev_ratio = ratio
+    return steps, n_steps, mass
