@@ -664,7 +664,7 @@ class _Analytic:
             from .threshold_exact import threshold_probabilities
 
             res = threshold_probabilities(
-                model, self.stopping.theta, max_steps=self.stopping.max_steps
+                model, self.stopping.theta, max_steps=self.stopping.max_steps, fallback="raise"
             )
             p = np.asarray(res.probabilities, dtype=float)
             p_undecided = float(res.p_undecided)

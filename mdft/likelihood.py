@@ -213,8 +213,9 @@ class Likelihood:
             fn = _threshold_exact_function()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", RuntimeWarning)
-                res = fn(quiet_model(Ms, p), theta, max_steps=max_steps,
-                         **self.threshold_options)
+                # a likelihood must not switch to a noisy method mid-optimisation
+                options = {"fallback": "raise", **self.threshold_options}
+                res = fn(quiet_model(Ms, p), theta, max_steps=max_steps, **options)
             self.last_warnings += [str(w.message) for w in caught]
             return res
         import mdft

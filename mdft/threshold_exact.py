@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,6 +28,7 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
+from ._threshold_fallback import simulated_answer
 from ._plane_chain import (TooManyStates, build_moment_chain, propagate_moments,
                            reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
@@ -38,6 +40,7 @@ logger = logging.getLogger(__name__)
 
 _MAX_OPTIONS = 3
 _METHODS = ("propagate", "solve")
+_FALLBACKS = ("simulation", "raise")
 _DIRECT_SOLVE_MAX_STATES = 3_000
 # Two options: lattice spacing at most this many per-step standard deviations, at least
 # this many cells per theta.
@@ -92,10 +95,10 @@ class ThresholdProbabilities:
     n_states : int
         Number of transient states of the chain.
     method : str
-        ``"propagate"`` or ``"solve"``.
+        ``"propagate"``, ``"solve"`` or ``"simulation"`` (the fallback).
     n_iter : int
-        Steps propagated, or iterations of the linear solver (0 for a direct
-        solve).
+        Steps propagated, iterations of the linear solver (0 for a direct
+        solve), or trials simulated by the fallback.
     converged : bool
         ``"propagate"``: True. ``"solve"``: whether the iterative solver met
         ``tol``.
@@ -103,14 +106,17 @@ class ThresholdProbabilities:
         First row of ``rt_pmf`` filled in geometrically (see ``tail_tol``),
         or None when every step was propagated.
     engine : str
-        ``"lattice"`` (two options) or ``"plane"`` (three options).
+        ``"lattice"`` (two options), ``"plane"`` (three options) or
+        ``"simulation"`` (the chain refused and ``fallback="simulation"``
+        answered; ``n_states`` is then 0).
     resolution : float
         Two options: the lattice spacing in per-step standard deviations of
         the preference difference; three options: the cell size in per-step
         standard deviations along each grid axis (``kappa`` in the docs).
     error_probabilities : float
         Estimated error of ``probabilities`` and ``p_undecided``: the largest
-        change against the same computation at a coarser resolution.
+        change against the same computation at a coarser resolution (the
+        simulation fallback: three standard errors).
     error_mean_rt : float
         Estimated relative error of ``mean_response_times``, measured the
         same way; options chosen with probability ``p < 0.01`` weigh in with
@@ -160,8 +166,9 @@ class ThresholdProbabilities:
         undecided   0.0000
         estimated error: probabilities ..., mean RT ... %
         """
-        lines = [f"Threshold stopping, theta = {self.theta:g} ({self.engine}, "
-                 f"{self.n_states} states)",
+        size = (f"{self.n_iter} trials" if self.engine == "simulation"
+                else f"{self.n_states} states")
+        lines = [f"Threshold stopping, theta = {self.theta:g} ({self.engine}, {size})",
                  f"{'option':>6}  {'probability':>11}  {'mean RT (steps)':>15}"]
         for i, (p, rt) in enumerate(zip(self.probabilities, self.mean_response_times)):
             lines.append(f"{i:>6}  {p:>11.4f}  {rt:>15.1f}")
@@ -206,7 +213,8 @@ class ThresholdProbabilities:
 
 def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=3e-3,
                             n_cells=None, resolution=None, method="propagate", tol=1e-10,
-                            tail_tol=1e-6, max_iter=2_000, max_states=100_000):
+                            tail_tol=1e-6, max_iter=2_000, max_states=100_000,
+                            fallback="simulation", rng=None):
     """Choice probabilities and response-time distribution of threshold stopping.
 
     The stopped MDFT process becomes an absorbing Markov chain on a grid of
@@ -258,8 +266,19 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     max_iter : int, default 2000
         Iteration limit of the iterative solver, per right-hand side.
     max_states : int, default 100_000
-        Largest chain the method may build; a model that needs more to meet
-        the tolerances raises ValueError.
+        Largest chain the method may build to meet the tolerances.
+    fallback : {"simulation", "raise"}, default "simulation"
+        What to do when the chain cannot meet ``atol`` and ``rt_rtol`` within
+        ``max_states`` (``method="propagate"`` only): ``"simulation"``
+        simulates trials in growing batches until three standard errors of
+        every probability are within ``atol`` and of every mean response time
+        within ``rt_rtol`` (``engine="simulation"``; the error fields are those
+        three standard errors), raising if that needs more than 2e9
+        trial-steps; ``"raise"`` raises ValueError at once (what fitting uses:
+        a likelihood must not switch to a noisy method mid-optimisation).
+    rng : None, int or numpy.random.Generator
+        Source of the fallback's trials; None uses a fixed seed, so calls are
+        repeatable.
 
     Returns
     -------
@@ -275,7 +294,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         zero; an initial preference at or above ``theta``; a feedback matrix
         under which the summed preference is not bounded; a model for which
         the estimated error cannot be brought below the tolerances within
-        ``max_states`` states.
+        ``max_states`` states and the fallback is off or over its budget.
 
     Notes
     -----
@@ -331,6 +350,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     max_iter = as_count("max_iter", max_iter, low=1)
     tail_tol = as_scalar("tail_tol", tail_tol, low=0.0, high=0.1)
     max_states = as_count("max_states", max_states, low=10)
+    if fallback not in _FALLBACKS:
+        raise ValueError(f"fallback must be one of {_FALLBACKS} (got {fallback!r})")
     if n_cells is not None:
         if n != 2:
             raise ValueError(
@@ -398,10 +419,26 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         reason = (f"estimated error {err_p:.2g} in the probabilities (atol={atol:g}) and "
                   f"{err_rt:.2g} relative in the mean response times (rt_rtol={rt_rtol:g}) "
                   f"at {fine.n_states} states")
+    if fallback == "simulation" and method == "propagate":
+        logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
+        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng,
+                                f"within max_states={max_states}: {reason}",
+                                partial(_simulated_result, theta=theta, max_steps=max_steps))
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="
         f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
+    )
+
+
+def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,
+                      *, theta, max_steps):
+    return ThresholdProbabilities(
+        probabilities=probabilities, p_undecided=float(p_undecided), rt_pmf=rt_pmf,
+        mean_response_times=mean_rt, theta=float(theta), max_steps=max_steps, n_cells=0,
+        spacing=math.nan, n_levels=1, n_states=0, method="simulation", n_iter=int(n_trials),
+        converged=True, tail_start=None, engine="simulation", resolution=math.nan,
+        error_probabilities=float(err_p), error_mean_rt=float(err_rt),
     )
 
 

@@ -120,7 +120,8 @@ def test_analytic_threshold_goes_through_threshold_probabilities(monkeypatch):
     exact = pytest.importorskip("mdft.threshold_exact")
     calls = []
 
-    def fake(model, theta, *, max_steps):
+    def fake(model, theta, *, max_steps, fallback):
+        assert fallback == "raise"  # an analytic effect has no sampling error
         calls.append((model.n_options, theta, max_steps))
         p = np.array([0.6, 0.35, 0.0]) if model.n_options == 3 else np.array([0.5, 0.48])
         return SimpleNamespace(probabilities=p, p_undecided=1.0 - p.sum(),

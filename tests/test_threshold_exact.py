@@ -213,7 +213,7 @@ def test_three_options_within_the_stated_error(seed):
     model, theta = random_model(np.random.default_rng(seed), 3, theta_range=(5.0, 25.0))
     assert np.ptp(model.S.sum(axis=0)) > 1e-3
     try:
-        res = threshold_probabilities(model, theta)
+        res = threshold_probabilities(model, theta, fallback="raise")
     except ValueError as exc:
         assert "cannot vouch" in str(exc) and "mdft.simulate" in str(exc)
         return
@@ -250,7 +250,7 @@ def test_large_threshold_is_answered_or_refused_never_wrong():
     # decides; now the answer is right or the call says it cannot vouch for one
     model = canonical(SETS["compromise"]).replace(sigma2=4.0)
     try:
-        res = threshold_probabilities(model, 60.0, max_states=6_000)
+        res = threshold_probabilities(model, 60.0, max_states=6_000, fallback="raise")
     except ValueError as exc:
         assert "cannot vouch" in str(exc)
         return
@@ -262,7 +262,7 @@ def test_budget_too_small_raises_a_clear_error():
     model = canonical(SETS["compromise"]).replace(sigma2=0.1)
     with pytest.raises(ValueError, match=r"cannot vouch for this model within max_states=50.*"
                                          r"mdft\.simulate"):
-        threshold_probabilities(model, 17.5, max_states=50)
+        threshold_probabilities(model, 17.5, max_states=50, fallback="raise")
 
 
 def test_tight_tolerance_refines_or_raises():
@@ -271,6 +271,38 @@ def test_tight_tolerance_refines_or_raises():
     tight = threshold_probabilities(model, 17.5, atol=1e-5, rt_rtol=1e-4)
     assert tight.n_cells >= loose.n_cells
     assert tight.error_probabilities <= 1e-5 and tight.error_mean_rt <= 1e-4
+
+
+def test_refused_chain_falls_back_to_a_simulation_within_its_stated_error(monkeypatch):
+    # max_states=10 makes the chain refuse at once; the fallback simulates until three
+    # standard errors meet atol and rt_rtol, and an independent simulation agrees
+    model = canonical(SETS["compromise"])
+    res = threshold_probabilities(model, 6.0, max_states=10, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation" and res.method == "simulation" and res.n_states == 0
+    assert res.error_probabilities <= 0.004 and res.error_mean_rt <= 0.01
+    assert res.n_iter >= 100_000 and "trials" in res.summary()
+    np.testing.assert_allclose(res.rt_pmf.sum(axis=0), res.probabilities, atol=1e-12)
+    assert res.probabilities.sum() + res.p_undecided == pytest.approx(1.0, abs=1e-12)
+    assert_within_stated_error(res, model, 6.0, 200_000, 11)
+    # repeatable by default, and a different rng gives a different (equally good) answer
+    again = threshold_probabilities(model, 6.0, max_states=10, atol=0.004, rt_rtol=0.01)
+    np.testing.assert_array_equal(res.probabilities, again.probabilities)
+    other = threshold_probabilities(model, 6.0, max_states=10, atol=0.004, rt_rtol=0.01, rng=3)
+    assert not np.array_equal(res.probabilities, other.probabilities)
+    # over its work budget, the fallback raises and says why the chain refused
+    from mdft import _threshold_fallback
+
+    monkeypatch.setattr(_threshold_fallback, "MAX_WORK", 1e5)
+    with pytest.raises(ValueError, match=r"the chain refused \(.*max_states.*\), and its "
+                                         r"simulation fallback would need .*Raise atol"):
+        threshold_probabilities(model, 6.0, max_states=10)
+
+
+def test_bad_fallback_is_a_clear_error():
+    model = canonical(SETS["compromise"])
+    with pytest.raises(ValueError, match=r"fallback must be one of \('simulation', 'raise'\) "
+                                         r"\(got 'mc'\)"):
+        threshold_probabilities(model, 6.0, fallback="mc")
 
 
 # ---------------------------------------------------------------- invariants

@@ -1,0 +1,94 @@
+"""Simulation fallback of :func:`mdft.threshold_probabilities`.
+
+When the chain cannot bring its estimated error below the tolerances,
+``fallback="simulation"`` answers by Monte Carlo instead of refusing: trials are
+simulated in growing batches until three standard errors of every probability
+(and of ``p_undecided``) are within ``atol`` and three standard errors of every
+mean response time are within ``rt_rtol`` of it, or until a work budget is spent,
+when it raises. The error fields of the result are those three standard errors,
+so the answer carries the same kind of guarantee as the chain's, statistically.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .simulate import Threshold, simulate
+
+#: First batch of trials, and the largest number of trials times mean decision steps.
+FIRST_BATCH = 100_000
+MAX_WORK = 2_000_000_000
+#: Options chosen less often than this weigh in on the mean-time error with p / this.
+RT_WEIGHT_FLOOR = 0.01
+#: Seed of the fallback's trials when the caller gives none (so calls are repeatable).
+DEFAULT_SEED = 20_260
+
+
+def _errors(counts, n_undecided, sums, squares):
+    """Three standard errors of the probabilities and the weighted relative ones of mean times."""
+    n = counts.sum() + n_undecided
+    shares = np.append(counts, n_undecided) / n
+    # (p (1 - p) + 1 / n) / n keeps the bound honest for shares near 0 or 1
+    err_p = 3.0 * float(np.sqrt((shares * (1.0 - shares) + 1.0 / n) / n).max())
+    err_rt = 0.0
+    for i, c in enumerate(counts):
+        if c < 2:
+            if c > 0 or shares[i] > 0:
+                err_rt = max(err_rt, min(1.0, shares[i] / RT_WEIGHT_FLOOR))
+            continue
+        mean = sums[i] / c
+        var = max(squares[i] / c - mean * mean, 0.0) * c / (c - 1)
+        rel = 3.0 * math.sqrt(var / c) / mean
+        err_rt = max(err_rt, min(1.0, shares[i] / RT_WEIGHT_FLOOR) * rel)
+    return err_p, err_rt
+
+
+def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result):
+    """The simulated answer, or ValueError when the work budget cannot meet the tolerances.
+
+    ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
+    builds the result object; ``reason`` says why the chain refused.
+    """
+    gen = np.random.default_rng(DEFAULT_SEED if rng is None else rng)
+    n_opt = model.n_options
+    counts = np.zeros(n_opt, dtype=np.int64)
+    n_undecided = 0
+    sums = np.zeros(n_opt)
+    squares = np.zeros(n_opt)
+    hist = np.zeros((max_steps, n_opt))
+    work = 0.0
+    batch = FIRST_BATCH
+    stopping = Threshold(theta, max_steps=max_steps)
+    while True:
+        res = simulate(model, batch, stopping=stopping, rng=gen)
+        chosen = res.choices >= 0
+        steps = res.decision_steps[chosen]
+        opts = res.choices[chosen]
+        counts += np.bincount(opts, minlength=n_opt)
+        n_undecided += int(res.n_undecided)
+        sums += np.bincount(opts, weights=steps, minlength=n_opt)
+        squares += np.bincount(opts, weights=steps.astype(np.float64) ** 2, minlength=n_opt)
+        hist += np.bincount((steps - 1) * n_opt + opts,
+                            minlength=max_steps * n_opt).reshape(max_steps, n_opt)
+        work += float(steps.sum()) + float(res.n_undecided) * max_steps
+        n = int(counts.sum()) + n_undecided
+        err_p, err_rt = _errors(counts, n_undecided, sums, squares)
+        if err_p <= atol and err_rt <= rt_rtol:
+            break
+        # trials needed: errors shrink as 1 / sqrt(n)
+        need = n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1
+        per_trial = work / n
+        if need * per_trial > MAX_WORK:
+            raise ValueError(
+                f"threshold_probabilities cannot vouch for this model: the chain refused "
+                f"({reason}), and its simulation fallback would need about {need:.3g} trials "
+                f"of {per_trial:.0f} steps on average, more than its budget of {MAX_WORK:.3g} "
+                f"trial-steps. Raise atol or rt_rtol, or run mdft.simulate(model, n_samples, "
+                f"stopping=mdft.Threshold(theta)) for as long as you can afford"
+            )
+        batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_rt = np.where(counts > 0, sums / np.where(counts > 0, counts, 1), np.nan)
+    return make_result(counts / n, n_undecided / n, hist / n, mean_rt, n, err_p, err_rt)
