@@ -27,7 +27,8 @@ among options chosen in at least 1000 simulated trials (``max dRT``) and among
 those chosen in at least 10 % of them (``dRT p>.1``, where the simulation's own
 relative error is below about 0.2 %); all include the simulation's own error
 (``se``: its largest standard error in a probability). A model the method
-cannot vouch for (ValueError) is counted and listed. Timings are wall-clock
+cannot vouch for (ValueError) is counted and listed; with ``--fallback simulation``
+it is answered by the simulation fallback instead ("sim" in the states column). Timings are wall-clock
 after compilation, on whatever else the machine is doing: quote them with the
 load average.
 """
@@ -99,10 +100,10 @@ def reference(model, theta, trials, max_steps, seed, cache):
     return ref
 
 
-def compare(model, theta, trials, max_steps, seed, cache=None):
+def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise"):
     start = time.perf_counter()
     try:
-        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps)
+        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
     except ValueError as exc:
         return None, time.perf_counter() - start, str(exc)
     seconds = time.perf_counter() - start
@@ -143,15 +144,17 @@ def run_set(label, models, n_options, args):
           "p (chain) / p (simulation)")
     for k, (model, theta, seed) in enumerate(models):
         out, seconds, why = compare(model, theta, args.trials, args.max_steps, seed,
-                                    args.cache)
+                                    args.cache, args.fallback)
         if out is None:
             refused.append((k, theta, model.sigma2, seconds, why))
             print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.2f} s: "
                   f"{why[:110]}")
             continue
         res, sim = out["res"], out["sim"]
-        rows.append((out["dp"], out["drt"], seconds, out["se"], out["drt_major"]))
-        print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {res.n_states:>7} {seconds:7.2f} "
+        rows.append((out["dp"], out["drt"], seconds, out["se"], out["drt_major"],
+                     res.engine == "simulation"))
+        size = "sim" if res.engine == "simulation" else res.n_states
+        print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {size:>7} {seconds:7.2f} "
               f"{out['dp']:8.4f} {out['se']:7.4f} {res.error_probabilities:8.1e} "
               f"{out['drt']:8.4f} {out['drt_major']:8.4f} {res.error_mean_rt:8.1e}  "
               f"{np.round(res.probabilities, 4)} u={res.p_undecided:.3f} / "
@@ -159,7 +162,8 @@ def run_set(label, models, n_options, args):
     times = [r[2] for r in rows] + [r[3] for r in refused]
     if rows:
         a = np.array(rows)
-        print(f"{label}: {len(rows)} models answered, {len(refused)} refused: "
+        print(f"{label}: {len(rows)} models answered ({int(a[:, 5].sum())} of them by the "
+              f"simulation fallback), {len(refused)} refused: "
               f"|dp| median {np.median(a[:, 0]):.4f} max {a[:, 0].max():.4f} "
               f"(simulation se up to {a[:, 3].max():.4f}); "
               f"|dRT| median {np.median(a[:, 1]):.4f} max {a[:, 1].max():.4f} "
@@ -179,6 +183,9 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--live", action="store_true",
                         help="add a screened set of three-option models that decide")
+    parser.add_argument("--fallback", choices=("raise", "simulation"), default="raise",
+                        help="threshold_probabilities' fallback= (default 'raise': the chain "
+                             "alone; 'simulation': the library's default)")
     parser.add_argument("--cache", default=None,
                         help="directory that stores the simulated references")
     args = parser.parse_args(argv)

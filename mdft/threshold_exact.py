@@ -408,7 +408,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         err_p, err_rt = _error_estimate(fine, coarse)
         spread_p, spread_rt = closure["error"]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
-        if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol:
+        narrow = n == 3 and _noise_sd(model) < closure["cell"] / math.sqrt(3.0)
+        if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
         if spread_p > atol or spread_rt > rt_rtol:
             reason = (f"the spread of the summed preference alone may change the probabilities "
@@ -416,6 +417,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
             break
         refinements += 1
+        if narrow:
+            reason = (f"the noise (sd {_noise_sd(model):.3g}) is narrower than the cells "
+                      f"({closure['cell']:.3g}) divided by sqrt(3) at {fine.n_states} states, "
+                      "where the estimate itself is not trusted")
+            continue
         reason = (f"estimated error {err_p:.2g} in the probabilities (atol={atol:g}) and "
                   f"{err_rt:.2g} relative in the mean response times (rt_rtol={rt_rtol:g}) "
                   f"at {fine.n_states} states")
@@ -443,6 +449,21 @@ def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err
 
 
 # ------------------------------------------------------------------ resolutions
+def _noise_sd(model):
+    """Smallest per-step standard deviation of the noise within the zero-sum plane.
+
+    Below a cell size over sqrt(3) the chain's variance correction must take width
+    from the attention jumps; where it must do so along both axes (noise narrower than
+    the smaller cell over sqrt(3)), its two resolutions were seen to agree on a mean
+    time 0.9 % off (``docs/threshold_exact.md``, section 8): such answers are not
+    returned, the resolution is refined instead.
+    """
+    B = np.linalg.qr(np.eye(3) - 1.0 / 3.0)[0][:, :2]
+    C = np.asarray(model.C)
+    cov = B.T @ (model.sigma2 * (C @ C.T)) @ B
+    return float(math.sqrt(max(np.linalg.eigvalsh(cov).min(), 0.0)))
+
+
 def _step_sd_binary(model):
     """Per-step standard deviation of the lattice coordinate ``(P_1 - P_2) / sqrt(2)``."""
     C = np.asarray(model.C)
@@ -499,6 +520,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure):
 
     def run(k, delta):
         chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
+        closure["cell"] = float(min(chain.h))
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
                       spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
                       engine="plane", resolution=float(k))
