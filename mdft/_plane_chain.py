@@ -129,6 +129,10 @@ class MomentChain:
     start_snext: float
     h: tuple
     moving: bool
+    #: The noise is narrower than the cell over sqrt(3) along both axes: the variance
+    #: correction then takes width from the attention jumps everywhere, and answers at
+    #: this grid are not trusted (``docs/threshold_exact.md``, section 8).
+    narrow: bool = False
 
     @property
     def n_states(self):
@@ -167,7 +171,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
     return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext, b_sum, start_cols,
-                       start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving)
+                       start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving,
+                       bool(np.all(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))))
 
 
 def propagate_moments(chain, max_steps, tol, tail_tol):

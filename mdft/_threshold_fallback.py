@@ -34,8 +34,8 @@ def _errors(counts, n_undecided, sums, squares):
     err_p = 3.0 * float(np.sqrt((shares * (1.0 - shares) + 1.0 / n) / n).max())
     err_rt = 0.0
     for i, c in enumerate(counts):
-        if c < 2:
-            if c > 0 or shares[i] > 0:
+        if c < 2:  # no spread to measure: as uncertain as the option's weight allows
+            if c > 0:
                 err_rt = max(err_rt, min(1.0, shares[i] / RT_WEIGHT_FLOOR))
             continue
         mean = sums[i] / c

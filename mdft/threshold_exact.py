@@ -28,7 +28,7 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
-from ._threshold_fallback import simulated_answer
+from ._threshold_fallback import RT_WEIGHT_FLOOR, simulated_answer
 from ._plane_chain import (TooManyStates, build_moment_chain, propagate_moments,
                            reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
@@ -57,8 +57,9 @@ _MAX_REFINEMENTS = 4
 _PILOT_DELTA = 0.5
 _SPREAD_SHARE = 0.5
 _PILOT_STEPS = 1_000
-# Mean response times of options chosen less often than this weigh in proportionally.
-_RT_WEIGHT_FLOOR = 0.01
+# Mean response times of options chosen less often than this weigh in proportionally
+# (the simulation fallback weighs its standard errors the same way).
+_RT_WEIGHT_FLOOR = RT_WEIGHT_FLOOR
 
 
 @dataclass(frozen=True)
@@ -408,7 +409,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         err_p, err_rt = _error_estimate(fine, coarse)
         spread_p, spread_rt = closure["error"]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
-        narrow = n == 3 and _noise_sd(model) < closure["cell"] / math.sqrt(3.0)
+        narrow = closure.get("narrow", False)
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
         if spread_p > atol or spread_rt > rt_rtol:
@@ -418,9 +419,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             break
         refinements += 1
         if narrow:
-            reason = (f"the noise (sd {_noise_sd(model):.3g}) is narrower than the cells "
-                      f"({closure['cell']:.3g}) divided by sqrt(3) at {fine.n_states} states, "
-                      "where the estimate itself is not trusted")
+            reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
+                      f"sqrt(3) at {fine.n_states} states, where the estimate itself is not "
+                      "trusted")
             continue
         reason = (f"estimated error {err_p:.2g} in the probabilities (atol={atol:g}) and "
                   f"{err_rt:.2g} relative in the mean response times (rt_rtol={rt_rtol:g}) "
@@ -449,21 +450,6 @@ def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err
 
 
 # ------------------------------------------------------------------ resolutions
-def _noise_sd(model):
-    """Smallest per-step standard deviation of the noise within the zero-sum plane.
-
-    Below a cell size over sqrt(3) the chain's variance correction must take width
-    from the attention jumps; where it must do so along both axes (noise narrower than
-    the smaller cell over sqrt(3)), its two resolutions were seen to agree on a mean
-    time 0.9 % off (``docs/threshold_exact.md``, section 8): such answers are not
-    returned, the resolution is refined instead.
-    """
-    B = np.linalg.qr(np.eye(3) - 1.0 / 3.0)[0][:, :2]
-    C = np.asarray(model.C)
-    cov = B.T @ (model.sigma2 * (C @ C.T)) @ B
-    return float(math.sqrt(max(np.linalg.eigvalsh(cov).min(), 0.0)))
-
-
 def _step_sd_binary(model):
     """Per-step standard deviation of the lattice coordinate ``(P_1 - P_2) / sqrt(2)``."""
     C = np.asarray(model.C)
@@ -520,7 +506,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure):
 
     def run(k, delta):
         chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
-        closure["cell"] = float(min(chain.h))
+        closure["narrow"] = chain.narrow
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
                       spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
                       engine="plane", resolution=float(k))
