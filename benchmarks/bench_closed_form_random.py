@@ -17,6 +17,9 @@ uniform on [0, 5]), random attention on the simplex, ``phi1`` in [0.005, 0.1], `
 * 4 or more options: simulation (``mdft.simulate``, ``--mc`` trials); the error is then
   known only up to the simulation's standard error, reported as ``|err| - 2 SE``.
 
+It also checks ``method="auto"`` itself: the error of its answer, whichever way it was
+obtained (enumeration, normal approximation, exact mixture), against the same reference.
+
 Reported: the error of the normal approximation, the estimate against it, the largest
 error among the models the estimate accepts at a given tolerance (the guarantee of
 ``method="auto"``), and the time per call of both methods.
@@ -116,9 +119,17 @@ def main(argv=None):
         lumpy = lumpiness(cov, np.asarray(model.C) @ np.asarray(model.M), np.asarray(model.w))
         trusted = lumpy <= _LUMPY_MAX
         path = ("enumerate" if enumerable else "normal" if trusted and est <= args.tol / _SAFETY
-                else "mixture" if n <= 3 else "raise")
+                else "mixture" if params["sigma2"] > 0 else "raise")
+        answer = auto(model, T, args.tol)
+        if answer is None:
+            path = "raise"
+            auto_err = auto_low = 0.0
+        else:
+            auto_err = float(np.abs(answer - exact).max())
+            auto_low = float(np.max(np.abs(answer - exact) - 2 * se))
         row = dict(n=n, T=T, J=model.n_attributes, est=est, err=err, err_low=err_low,
-                   se=float(np.max(se)), ref=ref, path=path, trusted=trusted, **params)
+                   se=float(np.max(se)), ref=ref, path=path, trusted=trusted,
+                   auto_err=auto_err, auto_low=auto_low, **params)
         if not args.no_timing:
             row["t_normal"] = median_ms(lambda: mdft.choice_probabilities(model, T,
                                                                           method="normal"))
@@ -161,6 +172,12 @@ def main(argv=None):
     print(f"returned as the normal answer by method='auto' ({acc.sum()} models): largest error "
           f"{err[acc].max(initial=0):.4f} (>= {max(low[acc].max(initial=0), 0):.4f})")
     paths = [r["path"] for r in rows]
+    for k in ("enumerate", "normal", "mixture"):
+        sel = [r for r in rows if r["path"] == k]
+        if sel:
+            print(f"method='auto' answers by {k:9s} ({len(sel)} models): largest error "
+                  f"{max(r['auto_err'] for r in sel):.4f} (>= "
+                  f"{max(max(r['auto_low'] for r in sel), 0.0):.4f} at 2 reference SE)")
     print(f"method='auto' with tol={args.tol:g}: "
           + ", ".join(f"{k} {paths.count(k) / len(paths):.0%}"
                       for k in ("enumerate", "normal", "mixture", "raise")))

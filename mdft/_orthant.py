@@ -324,3 +324,27 @@ def _orthant_sov(m, A):
     p = float(means.mean())
     err = float(3.0 * means.std(ddof=1) / np.sqrt(means.size))
     return min(max(p, 0.0), 1.0), err
+
+
+def sov_orthants_many(m, L, u):
+    """Unbiased estimates of ``Pr(m[s] + L z > 0)``, ``z ~ N(0, I)``, for many means.
+
+    ``m`` (N, q) are the means, ``L`` (q, q) a lower-triangular factor with a positive
+    diagonal, ``u`` (N, K, q - 1) independent uniforms on (0, 1): ``K`` randomised points
+    of Genz's separation of variables per mean. Row ``k`` bounds ``z_k`` from below given
+    the earlier ``z``; the estimate multiplies the probabilities of the bounds and draws
+    each ``z_k`` from its truncated normal by inversion. Returns the (N,) mean over the
+    points of each row, an unbiased estimate (its randomness averages out over rows).
+    """
+    q = L.shape[0]
+    N, K = u.shape[0], u.shape[1]
+    z = np.zeros((N, K, q))
+    weight = np.ones((N, K))
+    for k in range(q):
+        bound = -(m[:, None, k] + z[..., :k] @ L[k, :k]) / L[k, k]
+        tail = special.ndtr(-bound)  # Pr(z_k > bound)
+        weight *= tail
+        if k < q - 1:
+            # Phi(-z_k) is uniform on (0, tail) when z_k is normal truncated to (bound, inf)
+            z[..., k] = -special.ndtri(np.clip(tail * u[..., k], 1e-300, 1.0))
+    return weight.mean(axis=1)

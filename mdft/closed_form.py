@@ -41,8 +41,8 @@ from scipy import special
 from ._typing import SeedLike
 from ._export import builtin, fmt, labels_for, table, to_json
 from ._repr import compact_repr
-from ._orthant import (_TIE_RTOL, _OrthantSumError, _orthant_bivariate,
-                       _probabilities_from_moments)
+from ._orthant import (_TIE_RTOL, _OrthantSumError, _ordered_cholesky, _orthant_bivariate,
+                       _probabilities_from_moments, sov_orthants_many)
 from ._edgeworth import (attention_cumulants, bivariate_cdf, error_estimate, geometric_sums,
                          lattice_terms, lumpiness)
 from ._validation import MAX_STEPS, as_count, as_scalar
@@ -74,6 +74,11 @@ _MIXTURE_WORK = 20_000_000
 _METHODS = ("auto", "normal")
 #: Attention sequences simulated together by the exact mixture.
 _MIXTURE_BLOCK = 8192
+#: Four or more options: randomised separation-of-variables points per attention sequence,
+#: and the smallest pivot of a comparison covariance's factor, relative to its largest
+#: standard deviation, that counts as regular.
+_SOV_POINTS = 4
+_SOV_REGULAR = 1e-7
 
 
 class ClosedFormAccuracyWarning(RuntimeWarning):
@@ -191,8 +196,9 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
     ------
     ValueError
         With ``method="auto"``, if the normal approximation may be off by more than ``tol``
-        and no exact method applies at an affordable cost (four or more options, or
-        ``sigma2 = 0``, with a deliberation too long to enumerate). With either method, if
+        and no exact method applies at an affordable cost (``sigma2 = 0`` with a
+        deliberation too long to enumerate, or an exact mixture that would need more than
+        its work limit). With either method, if
         the orthant probabilities do not sum to one within their numerical error, or the
         moments overflow.
 
@@ -215,8 +221,8 @@ def choice_probabilities(model: MDFTModel, n_steps: int, *, method: str = "auto"
     leading Edgeworth terms of each option's orthant probability: in closed form for two
     options, by finite differences of Owen's T for three, by quasi-Monte Carlo capped by
     a Cauchy-Schwarz bound for four or more) and, when that estimate exceeds ``tol / 2``,
-    falls back to the exact mixture (:func:`mixture_choice_probabilities`, two or three
-    options, ``sigma2 > 0``) with a fixed seed and enough sequences for three standard
+    falls back to the exact mixture (:func:`mixture_choice_probabilities`,
+    ``sigma2 > 0``) with a fixed seed and enough sequences for three standard
     errors within ``tol``.
     ``docs/closed_form.md`` gives the accuracy of the estimate on random models.
 
@@ -313,10 +319,6 @@ def _exact_probabilities(model, n_steps, tol):
     n = model.n_options
     if _n_sequences(model, n_steps) <= _ENUMERATE_MAX and (n <= 3 or model.sigma2 == 0):
         return _enumerated_probabilities(model, n_steps), None
-    if n > 3:
-        return None, (f"no exact method applies (the exact mixture handles 2 or 3 options, "
-                      f"and the {model.n_attributes}**{n_steps} attention sequences are too "
-                      f"many to enumerate)")
     if model.sigma2 == 0:
         return None, ("no exact method applies (without noise the exact mixture does not "
                       "exist, and the attention sequences are too many to enumerate)")
@@ -372,10 +374,16 @@ def _enumerated_probabilities(model, n_steps):
     return p / p.sum()
 
 
-def _conditional_orthants(means, noise):
-    """``Pr(choose i | mean)`` for ``N(mean, noise)``, many means (N, n), n = 2 or 3."""
+def _conditional_orthants(means, noise, rng=None):
+    """``Pr(choose i | mean)`` for ``N(mean, noise)``, many means (N, n).
+
+    Two or three options: exact (normal CDF, bivariate normal). Four or more: unbiased
+    estimates from :data:`_SOV_POINTS` randomised points of Genz's separation of variables
+    per mean, drawn from ``rng``, with the comparisons ordered at the average mean.
+    """
     n = means.shape[1]
     f = np.empty(means.shape)
+    singular = False
     with np.errstate(divide="ignore", invalid="ignore"):  # checked just below
         for i in range(n):
             L = -np.eye(n)[np.arange(n) != i]
@@ -384,9 +392,17 @@ def _conditional_orthants(means, noise):
             cc = L @ noise @ L.T
             if n == 2:
                 f[:, i] = special.ndtr(mm[:, 0] / np.sqrt(cc[0, 0]))
-            else:
+            elif n == 3:
                 f[:, i] = _bivariate_orthant_many(mm, cc)
-    if not np.all(np.isfinite(f)):
+            else:
+                perm, chol = _ordered_cholesky(mm.mean(axis=0), cc)
+                diag = np.diag(chol)
+                if not diag.min() > _SOV_REGULAR * np.sqrt(np.abs(np.diag(cc)).max()):
+                    singular = True
+                    break
+                u = rng.random((means.shape[0], _SOV_POINTS, n - 2))
+                f[:, i] = sov_orthants_many(mm[:, perm], chol, u)
+    if singular or not np.all(np.isfinite(f)):
         scale = float(np.abs(np.diag(noise)).max())
         raise ValueError(
             "the exact mixture cannot vouch for this model: the noise covariance of P(T) is "
@@ -503,15 +519,16 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     Given the sequence of attended attributes, ``P(T)`` is exactly normal (the noise is
     Gaussian and enters linearly); the choice probabilities are therefore the average, over
     attention sequences, of normal orthant probabilities. This function samples the
-    sequences and computes each orthant probability exactly (conditional Monte Carlo),
-    with the first two moments of the attention sum as control variates. It is unbiased
+    sequences and computes each orthant probability exactly for two or three options, or
+    estimates it without bias for four or more (conditional Monte Carlo), with the first
+    two moments of the attention sum as control variates. It is unbiased
     and removes the one approximation of :func:`choice_probabilities`; use it to check that
     approximation or where it matters (short deliberations, few attributes).
 
     Parameters
     ----------
     model : MDFTModel
-        Two or three options and ``sigma2 > 0``.
+        Any number of options, ``sigma2 > 0``.
     n_steps : int
         Deliberation time ``T``, at least 1.
     n_sequences : int, default 20000
@@ -529,7 +546,10 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     the noise ``N ~ N(0, sigma2 sum_{k<T} S^k C C^T S^kT)``, independent of ``A``. The
     estimator averages ``Pr(L_i P(T) > 0 | A)`` over sampled ``A``; the control variates
     are the entries of ``A - E[A]`` and of ``(A - E[A])(A - E[A])^T - Cov(A)``, whose means
-    are known exactly (:func:`preference_moments` with ``sigma2 = 0``).
+    are known exactly (:func:`preference_moments` with ``sigma2 = 0``). With four or more
+    options each orthant probability is itself estimated, without bias, from a few
+    randomised points of Genz's separation of variables (Genz 1992) per sequence; the
+    standard errors include that randomness.
 
     Examples
     --------
@@ -545,11 +565,6 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     n_steps = as_count("n_steps", n_steps, low=1, high=MAX_STEPS)
     n_sequences = as_count("n_sequences", n_sequences, low=100, high=10_000_000)
     n = model.n_options
-    if n > 3:
-        raise ValueError(
-            f"mixture_choice_probabilities handles 2 or 3 options (got {n}); use "
-            "choice_probabilities or mdft.simulate"
-        )
     if not model.sigma2 > 0:
         raise ValueError(
             f"mixture_choice_probabilities needs sigma2 > 0 (got {model.sigma2}); with no "
@@ -584,7 +599,7 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
             a = a @ S.T + CMT[j]
         A[lo:lo + a.shape[0]] = a
     # Orthant probabilities of N(base + A, noise) for every sequence and option.
-    f = _conditional_orthants(base + A, noise)
+    f = _conditional_orthants(base + A, noise, rng)
     # Control variates: first and second moments of A, known exactly.
     D = A - att_mean
     iu = np.triu_indices(n)

@@ -315,9 +315,6 @@ def test_mixture_binary_symmetry_and_reproducibility():
 def test_mixture_bad_input():
     from mdft.closed_form import mixture_choice_probabilities
 
-    m4 = model([A, B, [2.0, 2.0], [0.5, 2.5]])
-    with pytest.raises(ValueError, match="handles 2 or 3 options"):
-        mixture_choice_probabilities(m4, 10)
     m0 = model(SETS["compromise"], sigma2=0.0)
     with pytest.raises(ValueError, match="needs sigma2 > 0"):
         mixture_choice_probabilities(m0, 10)
@@ -325,3 +322,27 @@ def test_mixture_bad_input():
         mixture_choice_probabilities(model(SETS["binary"]), 10, n_sequences=10)
     with pytest.raises(ValueError, match="n_steps must be an integer >= 1"):
         mixture_choice_probabilities(model(SETS["binary"]), 0)
+
+
+@pytest.mark.parametrize("q", [3, 4, 6])
+def test_randomised_separation_of_variables_is_unbiased(q):
+    # independent reference: SciPy's multivariate normal CDF (Pr(m + L z > 0) = Phi_q(m; LL^T))
+    from scipy.stats import multivariate_normal
+
+    from mdft._orthant import sov_orthants_many
+
+    rng = np.random.default_rng(q)
+    B = rng.normal(size=(q, q))
+    cov = B @ B.T + 0.1 * np.eye(q)
+    L = np.linalg.cholesky(cov)
+    means = rng.normal(scale=1.5, size=(4, q))
+    n_points = 40_000
+    u = rng.random((means.shape[0], n_points, q - 1))
+    est = sov_orthants_many(means, L, u)
+    # standard error from the spread of 100 batch means (each an unbiased estimate itself)
+    batches = np.stack([sov_orthants_many(means, L, u[:, k::100, :]) for k in range(100)])
+    assert np.allclose(batches.mean(axis=0), est, rtol=1e-12, atol=1e-15)
+    se = batches.std(axis=0, ddof=1) / np.sqrt(100)
+    mvn = multivariate_normal(mean=np.zeros(q), cov=cov, abseps=1e-7, releps=1e-7)
+    exact = np.array([mvn.cdf(m) for m in means])
+    assert np.all(np.abs(est - exact) <= 4 * se + 2e-6), (est, exact, se)
