@@ -16,7 +16,11 @@ module selects the constraints the demonstrations give evidence for:
    by ``N L_S - |S|`` (Akaike's cost, one nat per feature: a generous
    screen). The path stops at the first support that does not improve the
    score.
-2. **Backward elimination (evidence).** From the best screened support,
+2. **Backward elimination (evidence).** From the union of the best screened
+   support and the one the path visited after it (Akaike's score of a
+   support is a sum over all its features, so a feature with evidence above
+   ``cost`` can enter in the same step as many without; the elimination
+   removes those again),
    features whose removal costs fewer than ``cost`` nats of log-likelihood
    are removed until none is left. The cost with the other penalties held is
    an upper bound of the cost with them refitted, so a feature whose held
@@ -130,6 +134,8 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     empty = mesc_solvers.Fit(zeros, float(value0), grad0, 0, True, "no feature has evidence")
     best = (N * value0, np.zeros(F, dtype=bool), empty)
     lambdas, sizes = [], []
+    beyond = np.zeros(F, dtype=bool)  # features of the supports visited after the best one
+    last = zeros
     if lam_max > 0.0:
         w = zeros
         seen = set()
@@ -152,12 +158,21 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
             if score > best[0]:
                 best = (score, support, refit)
                 since_best = 0
+                beyond = np.zeros(F, dtype=bool)
             else:
                 since_best += 1
+                beyond |= support
+                last = refit.penalties
                 if since_best >= patience:
                     break
     _, support, fit = best
     support = support.copy()
+    if (beyond & ~support).any():
+        # the supports the path visited after the best one may hold features that the best
+        # one's neighbours stood in for: the elimination starts from their union
+        support |= beyond
+        fit = _refit(obj, np.where(best[1], fit.penalties, last), support, path_opts)
+        n_fits += 1
     evidence = np.zeros(F)
     tight = False  # fit is a refit at the final tolerance
     while support.any():

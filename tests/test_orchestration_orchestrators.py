@@ -283,8 +283,9 @@ def test_orchestrators_pickle_for_process_executors(small_prefs):
 
 
 def test_mdft_action_probabilities_raise_where_the_closed_form_cannot_vouch(small_prefs):
-    # strong decay and little noise: eight actions, no exact method, a clear error
-    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.7, 0.3), phi2=0.2, sigma2=1e-3,
+    # strong decay and no noise: eight actions, 2**40 attention sequences, no exact method,
+    # a clear error (with a little noise the exact mixture answers instead)
+    orch = MDFTOrchestrator.from_preferences(small_prefs, (0.7, 0.3), phi2=0.2, sigma2=0.0,
                                              n_steps=40)
     with pytest.raises(ValueError, match=r"^state 2: choice_probabilities cannot vouch for its "
                                          r"answer.*8 options"):
