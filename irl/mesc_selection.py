@@ -168,8 +168,8 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     _, support, fit = best
     support = support.copy()
     if (beyond & ~support).any():
-        # the supports the path visited after the best one may hold features that the best
-        # one's neighbours stood in for: the elimination starts from their union
+        # a feature with evidence can enter the path in the same step as several without any
+        # (Akaike's score sums over the support): the elimination starts from the union
         support |= beyond
         fit = _refit(obj, np.where(best[1], fit.penalties, last), support, path_opts)
         n_fits += 1
