@@ -363,9 +363,10 @@ class MDP:
         n_s, n_a, n_k = probs.shape
         if n_s == 0 or n_a == 0 or n_k == 0:
             raise ValueError(f"probs must have at least one state, action and successor (got shape {probs.shape})")
-        ns = _as_index("next_states", self.next_states, ndim=3, high=n_s)
+        ns = _as_index("next_states", self.next_states, ndim=3)
         if ns.shape != probs.shape:
             raise ValueError(f"next_states must have the shape of probs {probs.shape} (got {ns.shape})")
+        ns = _as_index("next_states", ns, high=n_s)  # n_s comes from probs: compare shapes first
         if probs.min() < 0:
             idx = np.unravel_index(np.argmin(probs), probs.shape)
             raise ValueError(f"probs must be non-negative (got {probs[idx]} at (s, a, k) = {tuple(int(i) for i in idx)})")

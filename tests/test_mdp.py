@@ -146,6 +146,9 @@ def test_shapes_and_types():
     ns, pr, rw = valid()
     with pytest.raises(ValueError, match="next_states must have the shape of probs"):
         MDP(ns[:, :, :1], pr, rw)
+    # probs with fewer states than next_states refers to: the shapes are named, not the range
+    with pytest.raises(ValueError, match=r"next_states must have the shape of probs \(1, "):
+        MDP(ns, pr[:1], rw)
     with pytest.raises(ValueError, match="rewards must have shape"):
         MDP(ns, pr, rw[:2])
     with pytest.raises(TypeError, match="next_states must hold integer"):
