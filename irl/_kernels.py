@@ -234,19 +234,22 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s,
-                       demo_a):
+def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, terminal, discount, shared, policy,
+                       demo_ptr, demo_s, demo_a):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
     ``shared[s]`` says that every action of s lists the same successors in the same
-    order (only the probabilities differ, as with slip): their values are then
-    gathered once per state and ``probs_t`` (``probs`` as (S, K, A), contiguous)
-    gives the actions' probabilities of one successor side by side. Demonstration transitions at step t are
-    ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and ``demo_a``); their
-    log-probabilities ``Q_t(s, a) - V_t(s)`` are summed without underflow.
-    The horizon is ``demo_ptr.size - 1``; a ``policy`` of shape (1, S, A) is
-    scratch space (the likelihood alone, each step overwriting the last).
-    Returns ``(v0, log_likelihood_sum)``.
+    order (only the probabilities differ, as with slip); such a state reads its
+    successors from ``succ[s]`` (int32, (S, K)) and the actions' probabilities of
+    successor k side by side from ``patterns[pattern_of[s], k]`` (a table of the
+    distinct (K, A) probability matrices, :func:`successor_patterns`): a gridworld
+    with slip has nine, so the pass reads a few bytes per state instead of
+    ``probs``. Other states read ``next_states`` and ``probs``. Demonstration
+    transitions at step t are ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and
+    ``demo_a``); their log-probabilities ``Q_t(s, a) - V_t(s)`` are summed
+    without underflow. The horizon is ``demo_ptr.size - 1``; a ``policy`` of
+    shape (1, S, A) is scratch space (the likelihood alone, each step
+    overwriting the last). Returns ``(v0, log_likelihood_sum)``.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = demo_ptr.size - 1
@@ -264,12 +267,13 @@ def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, s
                 continue
             if shared[s]:
                 # successor values gathered once; summed over k in order, for all actions at once
+                pat = patterns[pattern_of[s]]
                 for a in range(n_actions):
                     acc_a[a] = 0.0
                 for k in range(n_succ):
-                    vk = v_next[next_states[s, 0, k]]
+                    vk = v_next[succ[s, k]]
                     for a in range(n_actions):
-                        acc_a[a] += probs_t[s, k, a] * vk
+                        acc_a[a] += pat[k, a] * vk
                 for a in range(n_actions):
                     q[s, a] = r_bar[s, a] + discount * acc_a[a]
             else:
@@ -287,7 +291,8 @@ def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, s
 
 
 @njit
-def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a, weight):
+def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns, terminal, discount, shared, policy, demo_ptr,
+                       demo_s, demo_a, weight):
     """Adjoint (forward) pass of the demonstrations' log-likelihood.
 
     With c_t(s, a) the weighted count of demonstration transitions at step t,
@@ -295,7 +300,7 @@ def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, d
     ``m_{t+1}(s') = discount * sum_{s,a} L_t(s, a) P(s'|s, a)`` and ``m_0 = 0``
     gives ``d loglik = sum_t sum_{s,a} L_t(s, a) d r_bar(s, a)``. Returns
     ``(sa, dst)``: ``sa = sum_t L_t`` and ``dst[s'] = sum_t sum_{s,a} L_t(s, a) P(s'|s, a)``.
-    ``shared`` as in :func:`soft_backward_into`.
+    ``shared``, ``succ``, ``pattern_of`` and ``patterns`` as in :func:`soft_backward_into`.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
@@ -314,15 +319,16 @@ def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, d
             if ms == 0.0 or terminal[s]:
                 continue
             if shared[s]:
+                pat = patterns[pattern_of[s]]
                 for k in range(n_succ):
                     acc[k] = 0.0
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
                     sa[s, a] += la
                     for k in range(n_succ):
-                        acc[k] += la * probs[s, a, k]
+                        acc[k] += la * pat[k, a]
                 for k in range(n_succ):
-                    ns = next_states[s, 0, k]
+                    ns = succ[s, k]
                     dst[ns] += acc[k]
                     m_next[ns] += discount * acc[k]
             else:

@@ -153,6 +153,32 @@ def _as_sparse(name, value, n_rows, n_features):
     return sp.csr_array(arr)
 
 
+def successor_patterns(next_states, probs):
+    """Compact transitions for the passes of MESC-IRL: ``(shared, succ, pattern_of, patterns)``.
+
+    ``shared[s]`` says that every action of s lists the same successors in the
+    same order (as with slip); ``succ[s, k] = next_states[s, 0, k]`` (int32);
+    ``patterns`` holds the distinct (K, A) matrices ``probs[s].T`` of the shared
+    states (compared bit for bit, so nothing is rounded) and ``pattern_of[s]``
+    (int32) the one of state s (0 for other states). A gridworld with slip has
+    nine (the interior, four edges, four corners), so a pass reads a pattern
+    number and K successors per state instead of ``A K`` probabilities.
+    """
+    shared = _kernels.shared_successors(next_states)
+    n_states, n_actions, n_succ = probs.shape
+    succ = np.ascontiguousarray(next_states[:, 0, :], dtype=np.int32)
+    bits = np.ascontiguousarray(probs.transpose(0, 2, 1)).reshape(n_states, -1).view(np.int64)
+    pattern_of = np.zeros(n_states, dtype=np.int32)
+    idx = np.flatnonzero(shared)
+    if idx.size:
+        table, inverse = np.unique(bits[idx], axis=0, return_inverse=True)
+        pattern_of[idx] = inverse.reshape(-1)
+        patterns = np.ascontiguousarray(table.view(np.float64).reshape(-1, n_succ, n_actions))
+    else:
+        patterns = np.zeros((1, n_succ, n_actions))
+    return shared, succ, pattern_of, patterns
+
+
 # -------------------------------------------------------------------- features
 @dataclass(frozen=True, eq=False)
 class TransitionFeatures:

@@ -41,7 +41,7 @@ import numpy as np
 
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
-from .mdp import MDP, _as_float, _as_int, _as_real
+from .mdp import MDP, _as_float, _as_int, _as_real, successor_patterns
 from ._repr import compact_repr, iterations
 from .mesc_selection import evidence_cost
 
@@ -150,8 +150,7 @@ class MESCObjective:
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
         self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
-        self._shared = _kernels.shared_successors(nominal.next_states)
-        self._probs_t = np.ascontiguousarray(nominal.probs.transpose(0, 2, 1))
+        self._compact = successor_patterns(nominal.next_states, nominal.probs)  # shared, succ, pattern_of, patterns
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
@@ -166,8 +165,9 @@ class MESCObjective:
         r_bar = _kernels.penalised_expected_rewards(
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
+        shared, succ, pattern_of, patterns = self._compact
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, self._probs_t, r_bar, nom.terminal, nom.discount, self._shared,
+            nom.next_states, nom.probs, succ, pattern_of, patterns, r_bar, nom.terminal, nom.discount, shared,
             self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a,
         )
 
@@ -209,8 +209,9 @@ class MESCObjective:
     def _compute(self, w):
         nom = self.nominal
         _, loglik = self._backward(w)
+        shared, succ, pattern_of, patterns = self._compact
         sa, dst = _kernels.likelihood_adjoint(
-            nom.next_states, nom.probs, nom.terminal, nom.discount, self._shared, self._policy,
+            nom.next_states, nom.probs, succ, pattern_of, patterns, nom.terminal, nom.discount, shared, self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )
         self.n_evaluations += 1
