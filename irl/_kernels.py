@@ -293,13 +293,13 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
                     continue
                 if shared[s]:
                     # successor values gathered once; summed over k in order, for all actions at once
-                    pat = patterns[pattern_of[s]]
+                    pat = pattern_of[s]
                     for a in range(n_actions):
                         acc_a[a] = 0.0
                     for k in range(n_succ):
                         vk = v_next[succ[s, k]]
                         for a in range(n_actions):
-                            acc_a[a] += pat[k, a] * vk
+                            acc_a[a] += patterns[pat, k, a] * vk
                     for a in range(n_actions):
                         q[s, a] = r_bar[s, a] + discount * acc_a[a]
                 else:
@@ -385,14 +385,14 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
             if ms == 0.0 or terminal[s]:
                 continue
             if shared[s]:
-                pat = patterns_ak[pattern_of[s]]
+                pat = pattern_of[s]
                 for k in range(n_succ):
                     acc[k] = 0.0
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
                     sa[s, a] += la
                     for k in range(n_succ):
-                        acc[k] += la * pat[a, k]
+                        acc[k] += la * patterns_ak[pat, a, k]
                 for k in range(n_succ):
                     ns = succ[s, k]
                     dst[ns] += acc[k]

@@ -154,15 +154,39 @@ def _as_sparse(name, value, n_rows, n_features):
 
 
 def successor_patterns(next_states, probs):
-    """Compact transitions for the passes of MESC-IRL: ``(shared, succ, pattern_of, patterns)``.
+    """Compact transitions for the passes of MESC-IRL.
 
-    ``shared[s]`` says that every action of s lists the same successors in the
-    same order (as with slip); ``succ[s, k] = next_states[s, 0, k]`` (int32);
-    ``patterns`` holds the distinct (K, A) matrices ``probs[s].T`` of the shared
-    states (compared bit for bit, so nothing is rounded) and ``pattern_of[s]``
-    (int32) the one of state s (0 for other states). A gridworld with slip has
-    nine (the interior, four edges, four corners), so a pass reads a pattern
-    number and K successors per state instead of ``A K`` probabilities.
+    Parameters
+    ----------
+    next_states : ndarray of int, shape (S, A, K)
+    probs : ndarray, shape (S, A, K)
+        The padded arrays of an :class:`MDP`.
+
+    Returns
+    -------
+    shared : ndarray of bool, shape (S,)
+        Every action of s lists the same successors in the same order (as with slip).
+    succ : ndarray of int32, shape (S, K)
+        ``next_states[:, 0, :]``.
+    pattern_of : ndarray of int32, shape (S,)
+        The pattern of each shared state (0 for the others).
+    patterns : ndarray, shape (P, K, A)
+        The distinct matrices ``probs[s].T`` of the shared states, compared bit
+        for bit (nothing is rounded); one zero matrix when no state is shared.
+
+    Notes
+    -----
+    A gridworld with slip has nine patterns (the interior, four edges, four
+    corners), so a pass reads a pattern number and K successors per state
+    instead of ``A K`` probabilities.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> mdp = GridWorld(6, 0, 35, p_slip=0.1).nominal_mdp
+    >>> shared, succ, pattern_of, patterns = successor_patterns(mdp.next_states, mdp.probs)
+    >>> bool(shared.all()), patterns.shape
+    (True, (9, 8, 8))
     """
     shared = _kernels.shared_successors(next_states)
     n_states, n_actions, n_succ = probs.shape
