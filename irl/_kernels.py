@@ -125,27 +125,42 @@ def _exp_nonpositive(x):
 def _logsumexp_rows(q, terminal, v, policy):
     """v[s] = log sum_a exp(q[s, a]); policy[s, a] = exp(q[s, a] - v[s]) (uniform at terminals).
 
-    The exponentials (of ``q - max(q)``) are :func:`_exp_nonpositive`'s, in a
-    loop of their own so that it vectorises: the soft backward passes spend
-    most of their time here.
+    All rows of :func:`_logsumexp_block`.
     """
-    n_states, n_actions = q.shape
-    for s in range(n_states):
+    _logsumexp_block(q, terminal, v, policy, 0, q.shape[0])
+
+
+@njit
+def _logsumexp_block(q, terminal, v, policy, s0, s1):
+    """:func:`_logsumexp_rows` for the rows ``s0 <= s < s1`` (``policy`` C-contiguous).
+
+    The exponentials (of ``q - max(q)``) are :func:`_exp_nonpositive`'s, in one
+    flat loop over the whole block so that it vectorises (a loop over a row's
+    few actions does not): the soft backward passes spend most of their time
+    here. ``v[s]`` holds the row maxima in between.
+    """
+    n_actions = q.shape[1]
+    flat = policy[s0:s1].reshape(-1)  # indices from 0 (known non-negative: the loop below vectorises)
+    for s in range(s0, s1):
+        m = q[s, 0]
+        for a in range(1, n_actions):
+            x = q[s, a]
+            m = x if x > m else m
+        v[s] = m
+        for a in range(n_actions):
+            policy[s, a] = q[s, a] - m
+    for i in range(flat.size):
+        flat[i] = _exp_nonpositive(flat[i])
+    for s in range(s0, s1):
         if terminal[s]:
             v[s] = 0.0
             for a in range(n_actions):
                 policy[s, a] = 1.0 / n_actions
             continue
-        m = q[s, 0]
-        for a in range(1, n_actions):
-            if q[s, a] > m:
-                m = q[s, a]
-        for a in range(n_actions):
-            policy[s, a] = _exp_nonpositive(q[s, a] - m)
         acc = 0.0
         for a in range(n_actions):
             acc += policy[s, a]
-        v[s] = m + np.log(acc)
+        v[s] = v[s] + np.log(acc)
         inv = 1.0 / acc
         for a in range(n_actions):
             policy[s, a] *= inv
@@ -234,19 +249,27 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, shared, policy, demo_ptr, demo_s,
-                       demo_a):
+def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, terminal, discount, shared, policy,
+                       demo_ptr, demo_s, demo_a, block, block_first):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
     ``shared[s]`` says that every action of s lists the same successors in the same
-    order (only the probabilities differ, as with slip): their values are then
-    gathered once per state and ``probs_t`` (``probs`` as (S, K, A), contiguous)
-    gives the actions' probabilities of one successor side by side. Demonstration transitions at step t are
-    ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]`` (and ``demo_a``); their
-    log-probabilities ``Q_t(s, a) - V_t(s)`` are summed without underflow.
-    The horizon is ``demo_ptr.size - 1``; a ``policy`` of shape (1, S, A) is
-    scratch space (the likelihood alone, each step overwriting the last).
-    Returns ``(v0, log_likelihood_sum)``.
+    order (only the probabilities differ, as with slip); such a state reads its
+    successors from ``succ[s]`` (int32, (S, K)) and the actions' probabilities of
+    successor k side by side from ``patterns[pattern_of[s], k]`` (a table of the
+    distinct (K, A) probability matrices, :func:`irl.mdp.successor_patterns`): a
+    gridworld with slip has nine, so the pass reads a few bytes per state instead
+    of ``probs``. Other states read ``next_states`` and ``probs``.
+    States are processed in blocks of ``block``; block b is computed at steps
+    ``t >= block_first[b]`` only (its rows of ``policy`` and its values are left
+    as they are before), which is exact for every quantity at (t, s) with
+    ``t >= block_first[block of s]`` when no state of a block computed at t has a
+    successor in a block not computed at t + 1 (:func:`first_needed_steps`).
+    Demonstration transitions at step t are ``demo_s[demo_ptr[t]:demo_ptr[t + 1]]``
+    (and ``demo_a``); their log-probabilities ``Q_t(s, a) - V_t(s)`` are summed
+    without underflow. The horizon is ``demo_ptr.size - 1``; a ``policy`` of
+    shape (1, S, A) is scratch space (the likelihood alone, each step
+    overwriting the last). Returns ``(v0, log_likelihood_sum)``.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = demo_ptr.size - 1
@@ -257,28 +280,35 @@ def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, s
     acc_a = np.zeros(n_actions)
     loglik = 0.0
     for t in range(horizon - 1, -1, -1):
-        for s in range(n_states):
-            if terminal[s]:
-                for a in range(n_actions):
-                    q[s, a] = 0.0
+        pol = policy[t if keep else 0]
+        for b in range(block_first.size):
+            if block_first[b] > t:
                 continue
-            if shared[s]:
-                # successor values gathered once; summed over k in order, for all actions at once
-                for a in range(n_actions):
-                    acc_a[a] = 0.0
-                for k in range(n_succ):
-                    vk = v_next[next_states[s, 0, k]]
+            s0 = b * block
+            s1 = min(s0 + block, n_states)
+            for s in range(s0, s1):
+                if terminal[s]:
                     for a in range(n_actions):
-                        acc_a[a] += probs_t[s, k, a] * vk
-                for a in range(n_actions):
-                    q[s, a] = r_bar[s, a] + discount * acc_a[a]
-            else:
-                for a in range(n_actions):
-                    acc = 0.0
+                        q[s, a] = 0.0
+                    continue
+                if shared[s]:
+                    # successor values gathered once; summed over k in order, for all actions at once
+                    pat = pattern_of[s]
+                    for a in range(n_actions):
+                        acc_a[a] = 0.0
                     for k in range(n_succ):
-                        acc += probs[s, a, k] * v_next[next_states[s, a, k]]
-                    q[s, a] = r_bar[s, a] + discount * acc
-        _logsumexp_rows(q, terminal, v, policy[t if keep else 0])
+                        vk = v_next[succ[s, k]]
+                        for a in range(n_actions):
+                            acc_a[a] += patterns[pat, k, a] * vk
+                    for a in range(n_actions):
+                        q[s, a] = r_bar[s, a] + discount * acc_a[a]
+                else:
+                    for a in range(n_actions):
+                        acc = 0.0
+                        for k in range(n_succ):
+                            acc += probs[s, a, k] * v_next[next_states[s, a, k]]
+                        q[s, a] = r_bar[s, a] + discount * acc
+            _logsumexp_block(q, terminal, v, pol, s0, s1)
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             loglik += q[demo_s[i], demo_a[i]] - v[demo_s[i]]
         for s in range(n_states):
@@ -287,7 +317,46 @@ def soft_backward_into(next_states, probs, probs_t, r_bar, terminal, discount, s
 
 
 @njit
-def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, demo_ptr, demo_s, demo_a, weight):
+def first_needed_steps(next_states, probs, terminal, demo_ptr, demo_s, block):
+    """First step at which each block of states matters to the demonstrations' likelihood.
+
+    ``V_t(s)`` enters the likelihood only if s can be reached in at most
+    ``t - t'`` moves from a state demonstrated at a step ``t' <= t``; the
+    earliest such t per state (a breadth-first search seeded with the
+    demonstrated steps) is minimised over each block of ``block`` states and
+    capped at the horizon ``demo_ptr.size - 1`` (never needed). Every state of a
+    block needed at t then has its successors in blocks needed at t + 1.
+    """
+    n_states, n_actions, n_succ = probs.shape
+    horizon = demo_ptr.size - 1
+    first = np.full(n_states, horizon, dtype=np.int64)
+    for t in range(horizon):
+        for i in range(demo_ptr[t], demo_ptr[t + 1]):
+            if first[demo_s[i]] > t:
+                first[demo_s[i]] = t
+    # states by their label, relaxed in order of it (labels only grow by one per move)
+    for t in range(horizon - 1):
+        for s in range(n_states):
+            if first[s] != t or terminal[s]:
+                continue
+            for a in range(n_actions):
+                for k in range(n_succ):
+                    if probs[s, a, k] > 0.0:
+                        ns = next_states[s, a, k]
+                        if first[ns] > t + 1:
+                            first[ns] = t + 1
+    n_blocks = (n_states + block - 1) // block
+    out = np.full(n_blocks, horizon, dtype=np.int64)
+    for s in range(n_states):
+        b = s // block
+        if first[s] < out[b]:
+            out[b] = first[s]
+    return out
+
+
+@njit
+def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, terminal, discount, shared, policy, demo_ptr,
+                       demo_s, demo_a, weight):
     """Adjoint (forward) pass of the demonstrations' log-likelihood.
 
     With c_t(s, a) the weighted count of demonstration transitions at step t,
@@ -295,7 +364,9 @@ def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, d
     ``m_{t+1}(s') = discount * sum_{s,a} L_t(s, a) P(s'|s, a)`` and ``m_0 = 0``
     gives ``d loglik = sum_t sum_{s,a} L_t(s, a) d r_bar(s, a)``. Returns
     ``(sa, dst)``: ``sa = sum_t L_t`` and ``dst[s'] = sum_t sum_{s,a} L_t(s, a) P(s'|s, a)``.
-    ``shared`` as in :func:`soft_backward_into`.
+    ``shared``, ``succ`` and ``pattern_of`` as in :func:`soft_backward_into`;
+    ``patterns_ak`` is its table of patterns transposed, (P, A, K), so that
+    the probabilities of one action's successors lie side by side.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
@@ -314,15 +385,16 @@ def likelihood_adjoint(next_states, probs, terminal, discount, shared, policy, d
             if ms == 0.0 or terminal[s]:
                 continue
             if shared[s]:
+                pat = pattern_of[s]
                 for k in range(n_succ):
                     acc[k] = 0.0
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
                     sa[s, a] += la
                     for k in range(n_succ):
-                        acc[k] += la * probs[s, a, k]
+                        acc[k] += la * patterns_ak[pat, a, k]
                 for k in range(n_succ):
-                    ns = next_states[s, 0, k]
+                    ns = succ[s, k]
                     dst[ns] += acc[k]
                     m_next[ns] += discount * acc[k]
             else:

@@ -153,6 +153,56 @@ def _as_sparse(name, value, n_rows, n_features):
     return sp.csr_array(arr)
 
 
+def successor_patterns(next_states, probs):
+    """Compact transitions for the passes of MESC-IRL.
+
+    Parameters
+    ----------
+    next_states : ndarray of int, shape (S, A, K)
+    probs : ndarray, shape (S, A, K)
+        The padded arrays of an :class:`MDP`.
+
+    Returns
+    -------
+    shared : ndarray of bool, shape (S,)
+        Every action of s lists the same successors in the same order (as with slip).
+    succ : ndarray of int32, shape (S, K)
+        ``next_states[:, 0, :]``.
+    pattern_of : ndarray of int32, shape (S,)
+        The pattern of each shared state (0 for the others).
+    patterns : ndarray, shape (P, K, A)
+        The distinct matrices ``probs[s].T`` of the shared states, compared bit
+        for bit (nothing is rounded); one zero matrix when no state is shared.
+
+    Notes
+    -----
+    A gridworld with slip has nine patterns (the interior, four edges, four
+    corners), so a pass reads a pattern number and K successors per state
+    instead of ``A K`` probabilities.
+
+    Examples
+    --------
+    >>> from irl import GridWorld
+    >>> mdp = GridWorld(6, 0, 35, p_slip=0.1).nominal_mdp
+    >>> shared, succ, pattern_of, patterns = successor_patterns(mdp.next_states, mdp.probs)
+    >>> bool(shared.all()), patterns.shape
+    (True, (9, 8, 8))
+    """
+    shared = _kernels.shared_successors(next_states)
+    n_states, n_actions, n_succ = probs.shape
+    succ = np.ascontiguousarray(next_states[:, 0, :], dtype=np.int32)
+    bits = np.ascontiguousarray(probs.transpose(0, 2, 1)).reshape(n_states, -1).view(np.int64)
+    pattern_of = np.zeros(n_states, dtype=np.int32)
+    idx = np.flatnonzero(shared)
+    if idx.size:
+        table, inverse = np.unique(bits[idx], axis=0, return_inverse=True)
+        pattern_of[idx] = inverse.reshape(-1)
+        patterns = np.ascontiguousarray(table.view(np.float64).reshape(-1, n_succ, n_actions))
+    else:
+        patterns = np.zeros((1, n_succ, n_actions))
+    return shared, succ, pattern_of, patterns
+
+
 # -------------------------------------------------------------------- features
 @dataclass(frozen=True, eq=False)
 class TransitionFeatures:

@@ -41,7 +41,7 @@ import numpy as np
 
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
-from .mdp import MDP, _as_float, _as_int, _as_real
+from .mdp import MDP, _as_float, _as_int, _as_real, successor_patterns
 from ._repr import compact_repr, iterations
 from .mesc_selection import evidence_cost
 
@@ -83,6 +83,7 @@ def feasible_reward_sd(mdp):
     return float(np.std(mdp.rewards[mask]))
 
 
+PASS_BLOCK = 128  # states per block of the backward pass (its soft maximum runs over a block at a time)
 RECENT_EVALUATIONS = 64  # evaluations MESCObjective keeps (each: omega's bytes and the gradient, 2 F floats)
 
 
@@ -150,8 +151,13 @@ class MESCObjective:
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
         self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
-        self._shared = _kernels.shared_successors(nominal.next_states)
-        self._probs_t = np.ascontiguousarray(nominal.probs.transpose(0, 2, 1))
+        self._compact = successor_patterns(nominal.next_states, nominal.probs)  # shared, succ, pattern_of, patterns
+        self._patterns_ak = np.ascontiguousarray(self._compact[3].transpose(0, 2, 1))  # the adjoint's layout
+        # the passes skip blocks of states that no demonstrated state can reach by then (exact for L and its
+        # gradient); a full pass (the policy handed out) computes every block at every step
+        self._block_first = _kernels.first_needed_steps(
+            nominal.next_states, nominal.probs, nominal.terminal, self._demo_ptr, self._demo_s, PASS_BLOCK)
+        self._block_all = np.zeros_like(self._block_first)
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
@@ -160,15 +166,17 @@ class MESCObjective:
         """Number of penalties."""
         return self.features.n_features
 
-    def _backward(self, w, policy=None):
+    def _backward(self, w, policy=None, full=False):
         nom = self.nominal
         u_src, u_act, u_dst = self.features._projections(w)
         r_bar = _kernels.penalised_expected_rewards(
             nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
         )
+        shared, succ, pattern_of, patterns = self._compact
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, self._probs_t, r_bar, nom.terminal, nom.discount, self._shared,
-            self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a,
+            nom.next_states, nom.probs, succ, pattern_of, patterns, r_bar, nom.terminal, nom.discount, shared,
+            self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a, PASS_BLOCK,
+            self._block_all if full else self._block_first,
         )
 
     def __call__(self, penalties):
@@ -209,8 +217,10 @@ class MESCObjective:
     def _compute(self, w):
         nom = self.nominal
         _, loglik = self._backward(w)
+        shared, succ, pattern_of, _ = self._compact
         sa, dst = _kernels.likelihood_adjoint(
-            nom.next_states, nom.probs, nom.terminal, nom.discount, self._shared, self._policy,
+            nom.next_states, nom.probs, succ, pattern_of, self._patterns_ak, nom.terminal, nom.discount, shared,
+            self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )
         self.n_evaluations += 1
@@ -228,7 +238,7 @@ class MESCObjective:
         """
         w = self.features.check_weights(penalties, "penalties")
         nom = self.nominal
-        self._backward(w)
+        self._backward(w, full=True)
         sa, dst = _kernels.visitation_finite(nom.next_states, nom.probs, nom.terminal, nom.discount, self._policy, self.start)
         expected = self.features.counts(sa.sum(axis=1), sa.sum(axis=0), dst)
         S, A = nom.n_states, nom.n_actions
@@ -243,7 +253,7 @@ class MESCObjective:
     def policy(self, penalties):
         """The time-indexed soft policy of R_C, a new array of shape (H, S, A)."""
         w = self.features.check_weights(penalties, "penalties")
-        self._backward(w)
+        self._backward(w, full=True)
         return self._policy.copy()
 
 

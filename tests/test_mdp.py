@@ -5,6 +5,7 @@ import pytest
 import scipy.sparse as sp
 
 from irl import MDP, TransitionFeatures
+from irl.mdp import successor_patterns
 
 
 def tiny(seed=0, S=4, A=2, discount=0.9):
@@ -216,3 +217,33 @@ def test_feature_products_match_dense_algebra(n_states, n_features):
     d_src, d_act, d_dst = rng.normal(size=n_states), rng.normal(size=4), rng.normal(size=n_states)
     np.testing.assert_allclose(feats.counts(d_src, d_act, d_dst), src.toarray().T @ d_src + act.toarray().T @ d_act,
                                atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_successor_patterns_rebuild_the_transitions(seed):
+    rng = np.random.default_rng(seed)
+    S, A = 7, 3
+    P = rng.random((S, A, S)) * (rng.random((S, A, S)) < 0.5)
+    shared = rng.random(S) < 0.6
+    P[shared] = rng.random((int(shared.sum()), A, S)) * (rng.random((int(shared.sum()), 1, S)) < 0.6)
+    P[..., 0] += 0.1
+    P /= P.sum(axis=2, keepdims=True)
+    P[2] = P[1]
+    mdp = MDP.from_dense(P)
+    is_shared, succ, pattern_of, patterns = successor_patterns(mdp.next_states, mdp.probs)
+    same = np.all(mdp.next_states == mdp.next_states[:, :1], axis=(1, 2))
+    np.testing.assert_array_equal(is_shared, same)
+    assert succ.dtype == np.int32 and pattern_of.dtype == np.int32
+    for s in np.flatnonzero(same):
+        np.testing.assert_array_equal(succ[s], mdp.next_states[s, 0])
+        np.testing.assert_array_equal(patterns[pattern_of[s]].T, mdp.probs[s])
+    distinct = {mdp.probs[s].tobytes() for s in np.flatnonzero(same)}
+    assert len(patterns) == max(len(distinct), 1)
+
+
+def test_gridworld_with_slip_has_nine_successor_patterns():
+    from irl import GridWorld
+
+    mdp = GridWorld(12, 0, 143, p_slip=0.1).nominal_mdp
+    is_shared, _, _, patterns = successor_patterns(mdp.next_states, mdp.probs)
+    assert is_shared.all() and len(patterns) == 9

@@ -357,6 +357,70 @@ def test_gradient_on_random_mdps_with_dense_features(seed, discount):
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
 
 
+@settings(deadline=None, max_examples=10)
+@given(seed=st.integers(0, 10_000))
+def test_objective_on_mdps_mixing_shared_and_own_successors(seed):
+    # some states list the same successors for every action (read through the pattern table),
+    # the others their own; two shared states repeat one probability matrix
+    rng = np.random.default_rng(seed)
+    S, A, F = 6, 3, 5
+    P = rng.random((S, A, S)) * (rng.random((S, A, S)) < 0.5)
+    shared = rng.random(S) < 0.5
+    P[shared] = rng.random((int(shared.sum()), A, S)) * (rng.random((int(shared.sum()), 1, S)) < 0.6)
+    P[:, :, S - 1] += 0.1
+    P /= P.sum(axis=2, keepdims=True)
+    P[1] = P[0]
+    feats = TransitionFeatures(rng.random((S, F)), rng.random((A, F)), rng.random((S, F)))
+    term = np.zeros(S, dtype=bool)
+    term[S - 1] = True
+    mdp = MDP.from_dense(P, rng.normal(size=(S, A, S)), terminal=term, start=np.eye(S)[0], features=feats)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # some trajectories are cut at max_steps
+        demos = sample_trajectories(mdp, np.full((S, A), 1.0 / A), 8, rng=seed, max_steps=8)
+    obj = MESCObjective(mdp, demos, horizon=7)
+    w = rng.uniform(0.0, 2.0, F)
+    value, grad = obj(w)
+    pol = soft_value_iteration(mdp.penalised(w), horizon=7).policy
+    t = demos.time_steps
+    keep = t < 7
+    assert value == pytest.approx(np.log(pol[t[keep], demos.states[keep], demos.actions[keep]]).sum() / len(demos),
+                                  rel=1e-12)
+    eps = 1e-6
+    fd = np.array([(obj(w + eps * e)[0] - obj(w - eps * e)[0]) / (2 * eps) for e in np.eye(F)])
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("p_slip,discount", [(0.1, 1.0), (0.0, 0.9)])
+def test_passes_skip_only_states_the_likelihood_cannot_see(p_slip, discount):
+    # 20 x 20 (several blocks of states): blocks far from the start are skipped at early steps,
+    # and L, its gradient and the value alone are those of passes over every state at every step
+    world = GridWorld(20, 0, 399, constrained_states=[21, 42, 63], p_slip=p_slip, discount=discount)
+    demos = generate_demonstrations(world.constrained_mdp, 15, rng=4)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    assert obj._block_first.max() > 0 and obj._block_first.min() == 0
+    full = MESCObjective(world.nominal_mdp, demos)
+    full._block_first = full._block_all
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        w = rng.uniform(0.0, 4.0, world.n_features) * (rng.random(world.n_features) < 0.3)
+        value, grad = obj(w)
+        ref_value, ref_grad = full(w)
+        assert value == ref_value
+        np.testing.assert_array_equal(grad, ref_grad)
+        assert obj._value(w + 0.5) == full._value(w + 0.5)
+    # and the full passes are the independent recursion's
+    pol = soft_value_iteration(world.nominal_mdp.penalised(w), horizon=obj.horizon).policy
+    t = demos.time_steps
+    keep = t < obj.horizon
+    assert value == pytest.approx(np.log(pol[t[keep], demos.states[keep], demos.actions[keep]]).sum() / len(demos),
+                                  rel=1e-12)
+    np.testing.assert_allclose(obj.policy(w), pol, atol=1e-12)
+    d = rng.normal(size=world.n_features)
+    eps = 1e-6
+    fd = (obj(w + eps * d)[0] - obj(w - eps * d)[0]) / (2 * eps)
+    assert fd == pytest.approx(grad @ d, rel=1e-5)
+
+
 def test_fast_exp_matches_numpy_exp_within_two_ulp():
     # the backward pass's exp of q - max(q) <= 0, drawn over its whole range, and the edges
     from irl._kernels import _exp_nonpositive
