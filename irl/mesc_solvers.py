@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import Bounds, minimize
 from threadpoolctl import ThreadpoolController
 
 _CONTROLLER: list[ThreadpoolController] = []  # one ThreadpoolController, made on first use (it scans the loaded libraries)
@@ -97,13 +97,14 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
                 done["converged"] = True
                 raise StopIteration
 
-    bounds = []
-    for f in range(F):
-        if free is not None and not free[f]:
-            bounds.append((0.0, 0.0))
-        else:
-            u = None if upper is None else float(upper if np.ndim(upper) == 0 else upper[f])
-            bounds.append((0.0, None if u is None or not np.isfinite(u) else u / scale[f]))
+    # bounds as arrays (scipy converts a list of pairs element by element, in every fit)
+    if upper is None:
+        high = np.full(F, np.inf)
+    else:
+        high = np.broadcast_to(np.asarray(upper, dtype=np.float64), (F,)) / scale
+    if free is not None:
+        high = np.where(free, high, 0.0)
+    bounds = Bounds(np.zeros(F), high)
     res = minimize(
         fun, w0 / scale, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
         options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter, "maxcor": maxcor},
