@@ -85,6 +85,19 @@ def test_held_coordinates_stay_at_zero_and_the_cap_binds():
     assert fit.value == pytest.approx(-ref.fun, abs=1e-8)
 
 
+def test_a_scalar_cap_binds_on_the_penalties_whatever_the_scaling():
+    # the cap applies to omega, also when the solver runs on theta = omega / scale
+    world = small_world(0.0)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=4)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    scale = np.random.default_rng(4).uniform(0.2, 5.0, world.n_features)
+    plain = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), upper=1.5, tol=1e-7)
+    scaled = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), upper=1.5, scale=scale, tol=1e-7)
+    for fit in (plain, scaled):
+        assert fit.penalties.max() == pytest.approx(1.5) and np.all(fit.penalties <= 1.5)
+    assert scaled.value == pytest.approx(plain.value, abs=1e-6)
+
+
 # ------------------------------------------------------------- the evidence
 @settings(deadline=None, max_examples=6)
 @given(n_decisions=st.integers(1, 10**7), n_features=st.integers(1, 10**5))
