@@ -414,21 +414,22 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         # the change that each pass's extrapolated tail may make (three options)
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
+        spread_p, spread_rt = closure["error"]
+        if spread_p > atol or spread_rt > rt_rtol:
+            # known after the first pass: no finer pass can meet the tolerances
+            reason = (f"the spread of the summed preference alone may change the probabilities "
+                      f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
+                      f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
+            break
         if coarse is None:
             continue
         err_p, err_rt = _error_estimate(fine, coarse)
         err_p += tails[0][0] + tails[1][0]
         err_rt += tails[0][1] + tails[1][1]
-        spread_p, spread_rt = closure["error"]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
         narrow = closure.get("narrow", False)
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
-        if spread_p > atol or spread_rt > rt_rtol:
-            reason = (f"the spread of the summed preference alone may change the probabilities "
-                      f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
-                      f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
-            break
         refinements += 1
         if narrow:
             reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
