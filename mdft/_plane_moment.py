@@ -27,6 +27,8 @@ _NEGLIGIBLE = 1e-7
 OK = 0
 TOO_MANY_STATES = 1
 LOST_MASS = 2
+# Propagation leaves out states holding less than this share of the undecided mass.
+_SKIP = 1e-15
 
 
 @njit
@@ -348,19 +350,32 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
     mass = 0.0
     for r in range(n_states):
         mass += x[r]
+    # states holding less than _SKIP of the undecided mass are left out of the step (their
+    # mass, summed over the steps, is added to the probabilities' error)
+    s_scale = 1.0
+    for r in range(n_states):
+        s_scale = max(s_scale, abs(sref[r]) + 1.0)
+    dropped = 0.0
     steps = 1
     bb = b_sum * b_sum
     for t in range(1, n_steps):
         if mass < tol:
-            errors[0] = 0.0
+            errors[0] = dropped
             errors[1] = 0.0
             return steps, n_steps, mass
         for i in range(n_opt):
             rt_pmf[t, i] = 0.0
+        cut = _SKIP * mass
         for r in range(n_states):
             xr = x[r]
             mr = m[r]
             if xr == 0.0 and mr == 0.0:
+                continue
+            if abs(xr) < cut and abs(mr) < cut * s_scale:
+                dropped += abs(xr)
+                x[r] = 0.0
+                m[r] = 0.0
+                q[r] = 0.0
                 continue
             sr = sref[r]
             u = mr - sr * xr
@@ -413,8 +428,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
         if budget_p > 0.0 and t % 4 == 0 and check(
                 rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, dist,
                 reach, sigma, dsigma, errors):
+            errors[0] += dropped
             return steps, t + 1, fill(rt_pmf, t, mass, min(max(hazard[t], 0.0), 1.0), sigma)
     # no tail was filled: the last check's estimate does not apply
-    errors[0] = 0.0
+    errors[0] = dropped
     errors[1] = 0.0
     return steps, n_steps, mass

@@ -61,7 +61,7 @@ _PILOT_STEPS = 1_000
 _PILOT_PASSES = 2
 # Three options: the geometric tail is filled once the change it may make is within this
 # share of atol and rt_rtol (that change is added to the error estimate).
-_TAIL_SHARE = 0.05
+_TAIL_SHARE = 0.01
 # Mean response times of options chosen less often than this weigh in proportionally
 # (the simulation fallback weighs its standard errors the same way).
 _RT_WEIGHT_FLOOR = RT_WEIGHT_FLOOR
@@ -265,10 +265,14 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         ``"propagate"``: undecided mass at which propagation stops.
         ``"solve"``: relative residual of the iterative solver.
     tail_tol : float, default 1e-6
-        ``"propagate"``: once the undecided mass decays by a constant factor
-        per step and the options' shares of each step's choices stay fixed
-        (relative changes below ``tail_tol`` for 20 steps in a row), the rest
-        of ``rt_pmf`` is filled in geometrically. 0 propagates every step.
+        ``"propagate"``, two options: once the undecided mass decays by a
+        constant factor per step and the options' shares of each step's
+        choices stay fixed (relative changes below ``tail_tol`` for 20 steps in
+        a row), the rest of ``rt_pmf`` is filled in geometrically. Three
+        options (any ``tail_tol > 0``): the rest is filled in geometrically
+        once the change that the remaining drift of the decay and of the
+        shares may still make is within 1 % of ``atol`` and ``rt_rtol``; that
+        change is added to the error estimate. 0 propagates every step.
     max_iter : int, default 2000
         Iteration limit of the iterative solver, per right-hand side.
     max_states : int, default 100_000
