@@ -384,6 +384,12 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
             sn = snext[r]
             carry = sn * xr + b_sum * u
             cu = sn * u
+            for k in range(row_ptr[r], row_ptr[r + 1]):
+                c = cols[k]
+                a0 = t0[k]
+                a1 = t1[k]
+                y[c] += a0 * xr + a1 * u
+                ym[c] += a0 * carry + a1 * cu
             if second:
                 occ[r, 0] += xr
                 occ[r, 1] += mr
@@ -391,19 +397,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
                 v = q[r] - 2.0 * sr * mr + sr * sr * xr
                 q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
                 for k in range(row_ptr[r], row_ptr[r + 1]):
-                    c = cols[k]
-                    a0 = t0[k]
-                    a1 = t1[k]
-                    y[c] += a0 * xr + a1 * u
-                    ym[c] += a0 * carry + a1 * cu
-                    yq[c] += a0 * q0
-            else:
-                for k in range(row_ptr[r], row_ptr[r + 1]):
-                    c = cols[k]
-                    a0 = t0[k]
-                    a1 = t1[k]
-                    y[c] += a0 * xr + a1 * u
-                    ym[c] += a0 * carry + a1 * cu
+                    yq[cols[k]] += t0[k] * q0
         new_mass = 0.0
         for r in range(n_states):
             x[r] = y[r]
