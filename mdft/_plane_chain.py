@@ -170,13 +170,23 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     b_sum = float(g["S"].sum()) / 3.0
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
-    return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext, b_sum, start_cols,
-                       start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving,
+    # 32-bit column indices: a quarter less memory traffic per propagated step
+    return MomentChain(row_ptr, cols.astype(np.int32), t0, t1, r0, r1, pos, sref, snext,
+                       b_sum, start_cols, start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving,
                        bool(np.all(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))))
 
 
-def propagate_moments(chain, max_steps, tol, tail_tol):
-    """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation)``."""
+def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01):
+    """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
+    tail_errors)``.
+
+    ``budget = (atol, rtol)``: the change that filling the tail geometrically may
+    make to the probabilities and (relative) to the mean response times (0: no
+    tail; :mod:`mdft._plane_tail`); ``tail_errors`` is the change estimated where
+    it was filled. ``second`` also carries the second moment of the sum and the
+    occupation (a pilot pass); otherwise ``occupation`` is None. ``floor``: mean
+    response times of options chosen less often weigh in proportionally.
+    """
     n = chain.n_states
     x = np.zeros(n)
     np.add.at(x, chain.start_cols, chain.start_vals)
@@ -184,14 +194,17 @@ def propagate_moments(chain, max_steps, tol, tail_tol):
     q = x * chain.start_snext**2
     rt_pmf = np.zeros((max_steps, 3))
     rt_pmf[0] = chain.start_absorbed
-    occ = np.zeros((n, 3))
+    occ = np.zeros((n if second else 1, 3))
+    errors = np.zeros(2)
     steps, tail_start, mass = _plane_moment.propagate(
         chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
-        chain.snext, chain.b_sum, x, m, q, rt_pmf, occ, tol, tail_tol, _lattice._SETTLE)
+        chain.snext, chain.b_sum, x, m, q, rt_pmf, occ, tol, bool(second), float(budget[0]),
+        float(budget[1]), float(floor), errors)
     # the linearised choices can dip below zero by rounding-sized amounts where a state's
     # mean sum lies far from its reference; a probability is never negative
     np.maximum(rt_pmf, 0.0, out=rt_pmf)
-    return rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start), occ
+    return (rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start),
+            occ if second else None, (float(errors[0]), float(errors[1])))
 
 
 def reference_sums(chain, occ):

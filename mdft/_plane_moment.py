@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from ._lattice import fill_tail, settle_count
 from ._numba import njit
+from ._plane_tail import WINDOW, check, fill, snapshot
 from ._plane import absorb3, classify, cut_mass, centroid, interval_mass, _CUT, _WIDTH
 
 # A step whose staying mass finds no cell (every candidate below the kernel cut) may count
@@ -27,6 +27,8 @@ _NEGLIGIBLE = 1e-7
 OK = 0
 TOO_MANY_STATES = 1
 LOST_MASS = 2
+# Propagation leaves out states holding less than this share of the undecided mass.
+_SKIP = 1e-15
 
 
 @njit
@@ -301,74 +303,128 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
 
 @njit
 def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_pmf, occ, tol,
-              tail_tol, settle):
+              second, budget_p, budget_rt, floor, errors):
     """Apply the moment chain step by step (see the module docstring).
 
-    ``x``, ``m`` and ``q`` (probability, first and second moment of the sum on
-    each state) are updated in place; ``q`` only estimates the spread of the
-    sum (the next pass's ``delta``) and is carried by ``T0`` alone, which keeps
-    it stable; ``snext[r]`` is the next sum from state
-    ``r`` at its reference sum and ``b_sum`` its slope in the current sum.
-    ``occ[:, k]`` accumulates the occupation of ``x``, ``m`` and ``q`` over the
-    steps (for the next pass's reference sums and spread). Returns
-    ``(steps, tail_start, mass)``.
+    ``x`` and ``m`` (probability and first moment of the sum on each state)
+    are updated in place. With ``second``, so is ``q`` (second moment), which
+    only estimates the spread of the sum (the next pass's ``delta``) and is
+    carried by ``T0`` alone, which keeps it stable, and ``occ[:, k]``
+    accumulates the occupation of ``x``, ``m`` and ``q`` over the steps (for
+    the next pass's reference sums and spread). ``snext[r]`` is the next sum
+    from state ``r`` at its reference sum and ``b_sum`` its slope in the
+    current sum. Stops once the undecided mass is below ``tol``, or, with
+    ``budget_p > 0``, once the tail may be filled geometrically with a change
+    within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
+    the change is left in ``errors``). Returns ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
     n_steps = rt_pmf.shape[0]
+    n_opt = rt_pmf.shape[1]
     y = np.zeros(n_states)
     ym = np.zeros(n_states)
     yq = np.zeros(n_states)
+    hazard = np.zeros(n_steps)
+    done_p = np.zeros(n_opt)
+    done_w = np.zeros(n_opt)
+    sigma = np.zeros(n_opt)
+    dsigma = np.zeros(n_opt)
+    snap_x = np.zeros(n_states)
+    snap_m = np.zeros(n_states)
+    dist = np.full((3, 2), -1.0)
+    # how far a change in the distribution can move the hazard (choices per unit of x, m)
+    reach = np.zeros(2)
+    for r in range(n_states):
+        a0 = 0.0
+        a1 = 0.0
+        for i in range(n_opt):
+            a0 += abs(ab0[r, i] - ab1[r, i] * sref[r])
+            a1 += abs(ab1[r, i])
+        reach[0] = max(reach[0], a0)
+        reach[1] = max(reach[1], a1)
+    for i in range(n_opt):
+        done_p[i] = rt_pmf[0, i]
+        done_w[i] = rt_pmf[0, i]
+    errors[0] = 0.0
+    errors[1] = 0.0
     mass = 0.0
     for r in range(n_states):
         mass += x[r]
+    # states holding less than _SKIP of the undecided mass are left out of the step (their
+    # mass, summed over the steps, is added to the probabilities' error)
+    s_scale = 1.0
+    for r in range(n_states):
+        s_scale = max(s_scale, abs(sref[r]) + 1.0)
+    dropped = 0.0
     steps = 1
-    prev_ratio = -1.0
-    count = 0
     bb = b_sum * b_sum
     for t in range(1, n_steps):
         if mass < tol:
+            errors[0] = dropped
+            errors[1] = 0.0
             return steps, n_steps, mass
-        for i in range(3):
+        for i in range(n_opt):
             rt_pmf[t, i] = 0.0
+        cut = _SKIP * mass
         for r in range(n_states):
             xr = x[r]
-            if xr == 0.0 and m[r] == 0.0:
+            mr = m[r]
+            if xr == 0.0 and mr == 0.0:
                 continue
-            occ[r, 0] += xr
-            occ[r, 1] += m[r]
-            occ[r, 2] += q[r]
+            if abs(xr) < cut and abs(mr) < cut * s_scale:
+                dropped += abs(xr)
+                x[r] = 0.0
+                m[r] = 0.0
+                q[r] = 0.0
+                continue
             sr = sref[r]
-            u = m[r] - sr * xr
-            v = q[r] - 2.0 * sr * m[r] + sr * sr * xr
-            for i in range(3):
+            u = mr - sr * xr
+            for i in range(n_opt):
                 rt_pmf[t, i] += ab0[r, i] * xr + ab1[r, i] * u
             sn = snext[r]
             carry = sn * xr + b_sum * u
             cu = sn * u
-            q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
             for k in range(row_ptr[r], row_ptr[r + 1]):
                 c = cols[k]
                 a0 = t0[k]
                 a1 = t1[k]
                 y[c] += a0 * xr + a1 * u
                 ym[c] += a0 * carry + a1 * cu
-                yq[c] += a0 * q0
+            if second:
+                occ[r, 0] += xr
+                occ[r, 1] += mr
+                occ[r, 2] += q[r]
+                v = q[r] - 2.0 * sr * mr + sr * sr * xr
+                q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
+                for k in range(row_ptr[r], row_ptr[r + 1]):
+                    yq[cols[k]] += t0[k] * q0
         new_mass = 0.0
         for r in range(n_states):
             x[r] = y[r]
             m[r] = ym[r]
-            q[r] = yq[r]
             y[r] = 0.0
             ym[r] = 0.0
-            yq[r] = 0.0
             new_mass += x[r]
-        total = rt_pmf[t, 0] + rt_pmf[t, 1] + rt_pmf[t, 2]
+        if second:
+            for r in range(n_states):
+                q[r] = yq[r]
+                yq[r] = 0.0
+        total = 0.0
+        for i in range(n_opt):
+            total += rt_pmf[t, i]
+            done_p[i] += rt_pmf[t, i]
+            done_w[i] += (t + 1) * rt_pmf[t, i]
+        hazard[t] = total / mass if mass > 0.0 else 0.0
         steps = t + 1
-        ratio = new_mass / mass if mass > 0.0 else 0.0
         mass = new_mass
-        if tail_tol > 0.0 and total > 0.0 and t > 1:
-            count = settle_count(rt_pmf, t, total, ratio, prev_ratio, count, tail_tol)
-            if count >= settle and ratio < 1.0:
-                return steps, t + 1, mass * fill_tail(rt_pmf, t, ratio)
-        prev_ratio = ratio
+        if budget_p > 0.0 and t % WINDOW == 0:
+            snapshot(x, m, mass, snap_x, snap_m, dist)
+        if budget_p > 0.0 and t % 4 == 0 and check(
+                rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, dist,
+                reach, sigma, dsigma, errors):
+            errors[0] += dropped
+            return steps, t + 1, fill(rt_pmf, t, mass, min(max(hazard[t], 0.0), 1.0), sigma)
+    # no tail was filled: the last check's estimate does not apply
+    errors[0] = dropped
+    errors[1] = 0.0
     return steps, n_steps, mass

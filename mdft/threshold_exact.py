@@ -41,6 +41,7 @@ logger = logging.getLogger(__name__)
 _MAX_OPTIONS = 3
 _METHODS = ("propagate", "solve")
 _FALLBACKS = ("simulation", "raise")
+_BINARY_SOLVE = ("method", "max_steps", "tol", "tail_tol", "max_iter")
 _DIRECT_SOLVE_MAX_STATES = 3_000
 # Two options: lattice spacing at most this many per-step standard deviations, at least
 # this many cells per theta.
@@ -57,6 +58,10 @@ _MAX_REFINEMENTS = 4
 _PILOT_DELTA = 0.5
 _SPREAD_SHARE = 0.5
 _PILOT_STEPS = 1_000
+_PILOT_PASSES = 2
+# Three options: the geometric tail is filled once the change it may make is within this
+# share of atol and rt_rtol (that change is added to the error estimate).
+_TAIL_SHARE = 0.01
 # Mean response times of options chosen less often than this weigh in proportionally
 # (the simulation fallback weighs its standard errors the same way).
 _RT_WEIGHT_FLOOR = RT_WEIGHT_FLOOR
@@ -260,10 +265,14 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         ``"propagate"``: undecided mass at which propagation stops.
         ``"solve"``: relative residual of the iterative solver.
     tail_tol : float, default 1e-6
-        ``"propagate"``: once the undecided mass decays by a constant factor
-        per step and the options' shares of each step's choices stay fixed
-        (relative changes below ``tail_tol`` for 20 steps in a row), the rest
-        of ``rt_pmf`` is filled in geometrically. 0 propagates every step.
+        ``"propagate"``, two options: once the undecided mass decays by a
+        constant factor per step and the options' shares of each step's
+        choices stay fixed (relative changes below ``tail_tol`` for 20 steps in
+        a row), the rest of ``rt_pmf`` is filled in geometrically. Three
+        options (any ``tail_tol > 0``): the rest is filled in geometrically
+        once the change that the remaining drift of the decay and of the
+        shares may still make is within 1 % of ``atol`` and ``rt_rtol``; that
+        change is added to the error estimate. 0 propagates every step.
     max_iter : int, default 2000
         Iteration limit of the iterative solver, per right-hand side.
     max_states : int, default 100_000
@@ -388,13 +397,15 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         )
 
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
-                 max_iter=max_iter)
+                 max_iter=max_iter, atol=atol, rt_rtol=rt_rtol)
     closure = dict(error=(0.0, 0.0))
     if n == 2:
-        runs = _binary_runs(model, theta, n_cells, max_states, solve)
+        runs = _binary_runs(model, theta, n_cells, max_states,
+                            {k: solve[k] for k in _BINARY_SOLVE})
     else:
         runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure)
     coarse = fine = None
+    tails = [(0.0, 0.0)]
     refinements = 0
     reason = ""
     for compute in runs:
@@ -404,19 +415,25 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             reason = str(exc)
             break
         coarse, fine = fine, result
-        if coarse is None:
-            continue
-        err_p, err_rt = _error_estimate(fine, coarse)
+        # the change that each pass's extrapolated tail may make (three options)
+        tails = [tails[-1], (_own_error(result.error_probabilities),
+                             _own_error(result.error_mean_rt))]
         spread_p, spread_rt = closure["error"]
-        fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
-        narrow = closure.get("narrow", False)
-        if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
-            return fine
         if spread_p > atol or spread_rt > rt_rtol:
+            # known after the first pass: no finer pass can meet the tolerances
             reason = (f"the spread of the summed preference alone may change the probabilities "
                       f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
             break
+        if coarse is None:
+            continue
+        err_p, err_rt = _error_estimate(fine, coarse)
+        err_p += tails[0][0] + tails[1][0]
+        err_rt += tails[0][1] + tails[1][1]
+        fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
+        narrow = closure.get("narrow", False)
+        if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
+            return fine
         refinements += 1
         if narrow:
             reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
@@ -497,11 +514,16 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure):
     kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA)
 
+    budget = (_TAIL_SHARE * solve["atol"], _TAIL_SHARE * solve["rt_rtol"])
+    if solve["tail_tol"] == 0.0:
+        budget = (0.0, 0.0)
+
     def pilot(k):
-        for _ in range(2):
+        for _ in range(_PILOT_PASSES):
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
                                        max_states)
-            *_, occ = propagate_moments(chain, _PILOT_STEPS, 1e-9, 1e-6)
+            occ = propagate_moments(chain, _PILOT_STEPS, 1e-6, budget, second=True,
+                                    floor=_RT_WEIGHT_FLOOR)[4]
             state["ref"], state["delta"] = reference_sums(chain, occ)
 
     def run(k, delta):
@@ -512,15 +534,16 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure):
                       engine="plane", resolution=float(k))
         if solve["method"] == "propagate":
             steps = solve["max_steps"]
-            rt_pmf, mass, n_iter, tail_start, _ = propagate_moments(
-                chain, steps, solve["tol"], solve["tail_tol"])
+            rt_pmf, mass, n_iter, tail_start, _, tail_err = propagate_moments(
+                chain, steps, solve["tol"], budget, floor=_RT_WEIGHT_FLOOR)
             probs = rt_pmf.sum(axis=0)
             times = np.arange(1, steps + 1, dtype=np.float64)
             return ThresholdProbabilities(
                 probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,
                 mean_response_times=_mean_rt(times @ rt_pmf, probs), max_steps=steps,
                 method="propagate", n_iter=n_iter, converged=True,
-                tail_start=tail_start if tail_start < steps else None, **common)
+                tail_start=tail_start if tail_start < steps else None,
+                error_probabilities=tail_err[0], error_mean_rt=tail_err[1], **common)
         probs, weighted, n_iter, ok = solve_moments(chain, solve["tol"], solve["max_iter"],
                                                     _krylov)
         if not ok:
@@ -645,6 +668,10 @@ def _error_estimate(fine, coarse):
         weight = min(1.0, p / _RT_WEIGHT_FLOOR)
         err_rt = max(err_rt, weight * abs(a - b) / a)
     return err_p, float(err_rt)
+
+
+def _own_error(value):
+    return float(value) if math.isfinite(value) else 0.0
 
 
 def _with_errors(result, err_p, err_rt):
