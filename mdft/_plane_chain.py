@@ -129,9 +129,9 @@ class MomentChain:
     start_snext: float
     h: tuple
     moving: bool
-    #: The noise is narrower than the cell over sqrt(3) along both axes: the variance
-    #: correction then takes width from the attention jumps everywhere, and answers at
-    #: this grid are not trusted (``docs/threshold_exact.md``, section 8).
+    #: The noise is narrower than the cell over sqrt(3) along either axis: the variance
+    #: correction then takes width from the attention jumps along it, and answers at this
+    #: grid are not trusted (``docs/threshold_exact.md``, section 8).
     narrow: bool = False
 
     @property
@@ -173,7 +173,7 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     # 32-bit column indices: a quarter less memory traffic per propagated step
     return MomentChain(row_ptr, cols.astype(np.int32), t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving,
-                       bool(np.all(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))))
+                       bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))))
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01):
