@@ -40,10 +40,7 @@ def drift(v0, v1, v2, v3):
         return abs(d2) + abs(d1)
     if d0 * d1 <= 0.0 or d1 * d2 <= 0.0:
         return -1.0
-    r = max(d1 / d0, d2 / d1)
-    if not r < _MAX_RATIO:
-        return -1.0
-    return _SAFETY * abs(d2) * r / (1.0 - r)
+    return _settling(abs(d0), abs(d1), abs(d2))
 
 
 @njit

@@ -41,7 +41,6 @@ logger = logging.getLogger(__name__)
 _MAX_OPTIONS = 3
 _METHODS = ("propagate", "solve")
 _FALLBACKS = ("simulation", "raise")
-_BINARY_SOLVE = ("method", "max_steps", "tol", "tail_tol", "max_iter")
 _DIRECT_SOLVE_MAX_STATES = 3_000
 # Two options: lattice spacing at most this many per-step standard deviations, at least
 # this many cells per theta.
@@ -397,13 +396,13 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         )
 
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
-                 max_iter=max_iter, atol=atol, rt_rtol=rt_rtol)
+                 max_iter=max_iter)
     closure = dict(error=(0.0, 0.0))
     if n == 2:
-        runs = _binary_runs(model, theta, n_cells, max_states,
-                            {k: solve[k] for k in _BINARY_SOLVE})
+        runs = _binary_runs(model, theta, n_cells, max_states, solve)
     else:
-        runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure)
+        runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure,
+                           (atol, rt_rtol))
     coarse = fine = None
     tails = [(0.0, 0.0)]
     refinements = 0
@@ -502,21 +501,20 @@ def _binary_runs(model, theta, n_cells, max_states, solve):
     return [make(c) for c in sizes]
 
 
-def _plane_runs(model, theta, kappa, max_states, solve, closure):
+def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     """Computations of increasing resolution for three options (the moment chain).
 
     Before the first, two pilot passes at the coarsest resolution (the first
     from a constant reference sum and spread ``_PILOT_DELTA``, the second from
     the first's fit) fit the reference sums and their spread from the
     occupation; every pass that counts uses that fit, so ``"propagate"`` and
-    ``"solve"`` solve the same chains.
+    ``"solve"`` solve the same chains. ``tolerances``: ``(atol, rt_rtol)``.
     """
     kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA)
 
-    budget = (_TAIL_SHARE * solve["atol"], _TAIL_SHARE * solve["rt_rtol"])
-    if solve["tail_tol"] == 0.0:
-        budget = (0.0, 0.0)
+    # the change the extrapolated tail may make: a share of the tolerances (0: no tail)
+    budget = (0.0, 0.0) if solve["tail_tol"] == 0.0 else tuple(_TAIL_SHARE * t for t in tolerances)
 
     def pilot(k):
         for _ in range(_PILOT_PASSES):
