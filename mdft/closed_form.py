@@ -74,6 +74,12 @@ _MIXTURE_WORK = 20_000_000
 _METHODS = ("auto", "normal")
 #: Attention sequences simulated together by the exact mixture.
 _MIXTURE_BLOCK = 8192
+# Control variates of the mixture: rows needed per column, the relative singular value
+# below which a direction is left out, and the largest adjustment (in plain standard errors)
+# that is believed.
+_CV_ROWS_PER_COLUMN = 20
+_CV_RCOND = 1e-6
+_CV_MAX_SHIFT = 5.0
 #: Four or more options: randomised separation-of-variables points per attention sequence,
 #: and the smallest pivot of a comparison covariance's factor, relative to its largest
 #: standard deviation, that counts as regular.
@@ -609,19 +615,41 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
     # model ignores) is rounding noise: regressing on it would amplify that noise.
     a_scale = max(float(np.abs(A).max()), 1.0)
     col_scale = np.concatenate([np.full(n, a_scale), np.full(Q.shape[1], a_scale**2)])
-    X = X[:, X.std(axis=0) > 1e-9 * col_scale]
-    Xbar = X.mean(axis=0)
-    X = X - Xbar  # sample-centred: the regression estimator
-    fc = f - f.mean(axis=0)
-    coef, *_ = np.linalg.lstsq(X, fc, rcond=None)
-    est = f.mean(axis=0) - Xbar @ coef
-    resid = fc - X @ coef
-    se = resid.std(axis=0, ddof=X.shape[1] + 1) / np.sqrt(n_sequences)
+    sd = X.std(axis=0)
+    keep = sd > 1e-9 * col_scale
+    est, se = _control_variate_mean(f, X[:, keep] / sd[keep])
     est = np.clip(est, 0.0, 1.0)
     est = est / est.sum()
     est.flags.writeable = False
     se.flags.writeable = False
     return MixtureProbabilities(probabilities=est, standard_errors=se, n_sequences=n_sequences)
+
+
+def _control_variate_mean(f, X):
+    """Mean of ``f`` (N, n) and its standard errors, with control variates ``X`` (N, p).
+
+    The columns of ``X`` have known mean zero and unit spread. The regression estimator
+    needs many more rows than columns, and nearly collinear columns (an attribute the
+    attention never picks, few distinct sequences) would let rounding noise into huge
+    coefficients: directions below ``_CV_RCOND`` of the largest singular value are left
+    out, and an adjustment larger than ``_CV_MAX_SHIFT`` plain standard errors (which a
+    sound regression does not make) falls back to the plain mean.
+    """
+    N = f.shape[0]
+    plain = f.mean(axis=0)
+    plain_se = f.std(axis=0, ddof=1) / np.sqrt(N)
+    if X.shape[1] == 0 or N < _CV_ROWS_PER_COLUMN * X.shape[1]:
+        return plain, plain_se
+    Xbar = X.mean(axis=0)
+    Xc = X - Xbar  # sample-centred: the regression estimator
+    fc = f - plain
+    coef, _, rank, _ = np.linalg.lstsq(Xc, fc, rcond=_CV_RCOND)
+    est = plain - Xbar @ coef
+    if np.any(np.abs(est - plain) > _CV_MAX_SHIFT * plain_se + 1e-15):
+        return plain, plain_se
+    resid = fc - Xc @ coef
+    se = resid.std(axis=0, ddof=rank + 1) / np.sqrt(N)
+    return est, se
 
 
 def _bivariate_orthant_many(m, c):
