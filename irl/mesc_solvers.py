@@ -5,7 +5,8 @@ returns ``(L, dL/domega)`` without validation):
 
 * :func:`lbfgsb` maximises ``L(omega) - l1 * sum(omega) - l2 / 2 * |omega|**2``
   over ``0 <= omega <= upper`` with some penalties held at zero (``free``),
-  with scipy's L-BFGS-B and an optional diagonal scaling. On the non-negative
+  with scipy's L-BFGS-B (its routine driven by :mod:`irl._lbfgsb`) and an
+  optional diagonal scaling. On the non-negative
   orthant the L1 term is linear, so the objective stays smooth.
 * :func:`exponentiated_gradient` is the optimiser of the paper's public code:
   multiplicative ascent ``omega <- omega * exp(lr * g)`` with the gradient g
@@ -21,8 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import Bounds, minimize
 from threadpoolctl import ThreadpoolController
+
+from . import _lbfgsb
 
 _CONTROLLER: list[ThreadpoolController] = []  # one ThreadpoolController, made on first use (it scans the loaded libraries)
 
@@ -66,10 +68,14 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     (bool mask) holds the other penalties at zero; ``scale`` runs the
     solver on ``theta = omega / scale``. Converged means the projected gradient
     of the penalised objective is <= tol on the free coordinates, or
-    L-BFGS-B's relative reduction test passed.
+    L-BFGS-B's relative reduction test passed. scipy's routine is driven by
+    :func:`irl._lbfgsb.minimize_box` (same iterates as
+    ``scipy.optimize.minimize``, which is used when that driver is not
+    available).
     """
     F = w0.size
-    scale = np.ones(F) if scale is None else scale
+    scaled = scale is not None
+    scale = scale if scaled else np.ones(F)
     w0 = np.where(free, w0, 0.0) if free is not None else w0
     last = {}
 
@@ -83,40 +89,38 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
         return value, grad
 
     def fun(theta):
-        w = theta * scale
+        # theta is the solver's own copy (neither solver path changes it later); with no scaling
+        # theta * 1.0 and -grad * 1.0 would be theta and -grad bit for bit, so they are skipped
+        w = theta * scale if scaled else theta
         value, grad = penalised(w, *obj._evaluate(w))
-        last.update(theta=theta.copy(), grad=grad)
-        return -value, -grad * scale
+        last["theta"], last["grad"] = theta, grad
+        return -value, (-grad * scale if scaled else -grad)
 
     done = {"converged": False}
 
-    def callback(intermediate_result):
-        theta = intermediate_result.x
+    def callback(theta):
         if "theta" in last and np.array_equal(theta, last["theta"]):
-            if projected_gradient_norm(theta * scale, last["grad"], upper, free) <= tol:
+            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= tol:
                 done["converged"] = True
-                raise StopIteration
+                return True
+        return False
 
-    # bounds as arrays (scipy converts a list of pairs element by element, in every fit)
     if upper is None:
         high = np.full(F, np.inf)
     else:
         high = np.broadcast_to(np.asarray(upper, dtype=np.float64), (F,)) / scale
     if free is not None:
         high = np.where(free, high, 0.0)
-    bounds = Bounds(np.zeros(F), high)
-    res = minimize(
-        fun, w0 / scale, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
-        options={"maxiter": max_iter, "gtol": 0.0, "maxfun": 20 * max_iter, "maxcor": maxcor},
-    )
+    solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
+    res = solve(fun, w0 / scale, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)
     w = np.clip(res.x * scale, 0.0, upper)
     if free is not None:
         w[~free] = 0.0
     value, grad = obj._evaluate(w)
     _, grad_pen = penalised(w, value, grad)
-    converged = done["converged"] or projected_gradient_norm(w, grad_pen, upper, free) <= tol or bool(res.success)
-    message = "projected gradient <= tol" if done["converged"] else str(res.message)
-    return Fit(w, float(value), grad, int(res.get("nit", 0)), bool(converged), message)
+    converged = done["converged"] or projected_gradient_norm(w, grad_pen, upper, free) <= tol or res.success
+    message = "projected gradient <= tol" if done["converged"] else res.message
+    return Fit(w, float(value), grad, res.nit, bool(converged), message)
 
 
 def exponentiated_gradient(obj, n_features, *, steps=500, lr=0.3, clip=10.0, init=1e-6, burn_in=50,
