@@ -129,6 +129,7 @@ class MomentChain:
     start_snext: float
     h: tuple
     moving: bool
+    delta: float
     #: The noise is narrower than the cell over sqrt(3) along either axis: the variance
     #: correction then takes width from the attention jumps along it, and answers at this
     #: grid are not trusted (``docs/threshold_exact.md``, section 8).
@@ -171,9 +172,10 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
     # 32-bit column indices: a quarter less memory traffic per propagated step
+    narrow = bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0)))
     return MomentChain(row_ptr, cols.astype(np.int32), t0, t1, r0, r1, pos, sref, snext,
-                       b_sum, start_cols, start_vals, start_abs, float(start_snext), (g["h1"], g["h2"]), moving,
-                       bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))))
+                       b_sum, start_cols, start_vals, start_abs, float(start_snext),
+                       (g["h1"], g["h2"]), moving, float(delta), narrow)
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01):
@@ -198,8 +200,8 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     errors = np.zeros(2)
     steps, tail_start, mass = _plane_moment.propagate(
         chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
-        chain.snext, chain.b_sum, x, m, q, rt_pmf, occ, tol, bool(second), float(budget[0]),
-        float(budget[1]), float(floor), errors)
+        chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol, bool(second),
+        float(budget[0]), float(budget[1]), float(floor), errors)
     # the linearised choices can dip below zero by rounding-sized amounts where a state's
     # mean sum lies far from its reference; a probability is never negative
     np.maximum(rt_pmf, 0.0, out=rt_pmf)
@@ -238,7 +240,8 @@ def solve_moments(chain, tol, max_iter, krylov):
     b = chain.b_sum
     # new (x, m) = G (x, m): see the module docstring of mdft._plane_moment
     G = sp.bmat([[T0.T - T1.T @ Dr, T1.T],
-                 [T0.T @ (Dn - b * Dr) - T1.T @ (Dn @ Dr), b * T0.T + T1.T @ Dn]]).tocsr()
+                 [T0.T @ (Dn - b * Dr) - T1.T @ (Dn @ Dr - b * chain.delta**2 * sp.identity(n)),
+                  b * T0.T + T1.T @ Dn]]).tocsr()
     A = (sp.identity(2 * n, format="csr") - G).tocsr()
     x1 = np.zeros(n)
     np.add.at(x1, chain.start_cols, chain.start_vals)

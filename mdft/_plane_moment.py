@@ -302,13 +302,15 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
 
 
 @njit
-def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_pmf, occ, tol,
-              second, budget_p, budget_rt, floor, errors):
+def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q, rt_pmf, occ,
+              tol, second, budget_p, budget_rt, floor, errors):
     """Apply the moment chain step by step (see the module docstring).
 
     ``x`` and ``m`` (probability and first moment of the sum on each state)
-    are updated in place. With ``second``, so is ``q`` (second moment), which
-    only estimates the spread of the sum (the next pass's ``delta``) and is
+    are updated in place; ``dvar`` is ``delta**2``, the spread of the sum
+    within a state, which enters ``m`` through its covariance with the slope
+    ``T1`` (``docs/threshold_exact.md``, section 2). With ``second``, so is
+    ``q`` (second moment), which only estimates the spread of the sum (the next pass's ``delta``) and is
     carried by ``T0`` alone, which keeps it stable, and ``occ[:, k]``
     accumulates the occupation of ``x``, ``m`` and ``q`` over the steps (for
     the next pass's reference sums and spread). ``snext[r]`` is the next sum
@@ -383,7 +385,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, x, m, q, rt_p
                 rt_pmf[t, i] += ab0[r, i] * xr + ab1[r, i] * u
             sn = snext[r]
             carry = sn * xr + b_sum * u
-            cu = sn * u
+            cu = sn * u + b_sum * dvar * xr
             for k in range(row_ptr[r], row_ptr[r + 1]):
                 c = cols[k]
                 a0 = t0[k]

@@ -45,6 +45,29 @@ def _errors(counts, n_undecided, sums, squares):
     return err_p, err_rt
 
 
+def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):
+    """Simulated steps that :func:`simulated_answer` would need for a model whose answer is
+    about known.
+
+    The trials that three standard errors within ``atol`` and ``rt_rtol`` need follow
+    from the probabilities and the response-time distribution (``rt_pmf``, steps by
+    options), times the mean number of steps per trial.
+    """
+    times = np.arange(1, rt_pmf.shape[0] + 1, dtype=np.float64)
+    shares = np.append(probabilities, p_undecided)
+    trials = 9.0 * float(np.max(shares * (1.0 - shares))) / atol**2
+    for i, p in enumerate(probabilities):
+        if p <= 0.0:
+            continue
+        mean = times @ rt_pmf[:, i] / p
+        var = max((times**2) @ rt_pmf[:, i] / p - mean * mean, 0.0)
+        weight = min(1.0, p / RT_WEIGHT_FLOOR)
+        # n p trials choose option i: three of its standard errors within rt_rtol / weight
+        trials = max(trials, 9.0 * var * weight**2 / (p * (rt_rtol * mean) ** 2))
+    trials = max(trials, FIRST_BATCH)
+    return trials * (float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps)
+
+
 def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result):
     """The simulated answer, or ValueError when the work budget cannot meet the tolerances.
 

@@ -28,7 +28,7 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
-from ._threshold_fallback import RT_WEIGHT_FLOOR, simulated_answer
+from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
 from ._plane_chain import (TooManyStates, build_moment_chain, propagate_moments,
                            reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
@@ -51,11 +51,20 @@ _BINARY_MAX_CELLS = 3_000
 _KAPPA = 1.0
 _REFINE = math.sqrt(2.0)
 _MAX_REFINEMENTS = 4
+# Three options: the coarsest grid (a cell and a half per standard deviation of a step) is
+# often outside the range where the error falls with the square of the cell size, so the
+# first comparison counts as if the error fell only in proportion to it: the change is
+# scaled by 1 / (sqrt(2) - 1). Later comparisons are taken as they are.
+_FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
+# Three options, simulation fallback: the cost of building a nonzero of the chain and of
+# simulating one step of one trial, in units of propagating a nonzero by one step (measured
+# with benchmarks/bench_threshold_exact.py); the fallback simulates when that costs less
+# than the next refinement.
+_BUILD_WORK = 100.0
+_SIM_STEP_WORK = 10.0
 # Three options: spread of the summed preference within a state assumed by the pilot pass,
-# the pilot's step limit (its occupation only fits the reference sums), and the share of
-# the whole effect of the spread that is added to the error estimate.
+# and the pilot's step limit (its occupation only fits the reference sums).
 _PILOT_DELTA = 0.5
-_SPREAD_SHARE = 0.5
 _PILOT_STEPS = 1_000
 _PILOT_PASSES = 2
 # Three options: the geometric tail is filled once the change it may make is within this
@@ -427,6 +436,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if coarse is None:
             continue
         err_p, err_rt = _error_estimate(fine, coarse)
+        if fine.engine == "plane" and refinements == 0:
+            # the coarsest grid is not yet in the asymptotic range
+            err_p, err_rt = _FIRST_PAIR_FACTOR * err_p, _FIRST_PAIR_FACTOR * err_rt
         err_p += tails[0][0] + tails[1][0]
         err_rt += tails[0][1] + tails[1][1]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
@@ -434,6 +446,18 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
         refinements += 1
+        if fallback == "simulation" and method == "propagate" and fine.engine == "plane":
+            # simulate when that costs less than the next, finer pass (about four times the
+            # nonzeros of this one): a deterministic count, in steps of one nonzero
+            chain_work = _REFINE**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
+            sim_work = _SIM_STEP_WORK * predicted_work(
+                max_steps, fine.probabilities, fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
+            if sim_work < chain_work:
+                reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities and "
+                          f"{err_rt + spread_rt:.2g} relative in the mean response times at "
+                          f"{fine.n_states} states, where simulating costs less than a "
+                          "finer grid")
+                break
         if narrow:
             reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
                       f"sqrt(3) at {fine.n_states} states, where the estimate itself is not "
@@ -527,6 +551,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     def run(k, delta):
         chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
         closure["narrow"] = chain.narrow
+        closure["nonzeros"] = chain.cols.shape[0]
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
                       spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
                       engine="plane", resolution=float(k))
@@ -560,10 +585,9 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 pilot(k)
             result = run(k, state["delta"])
             if first and state["delta"] > 0.0:
-                # the closure's error: half the whole effect of the sum's spread, that is,
-                # the change that a spread off by a factor sqrt(2) either way would make
-                full = _error_estimate(result, run(k, 0.0))
-                closure.update(error=(_SPREAD_SHARE * full[0], _SPREAD_SHARE * full[1]))
+                # the closure's error: the change that a spread of the sum within the states
+                # smaller by a factor sqrt(2) makes
+                closure.update(error=_error_estimate(result, run(k, state["delta"] / _REFINE)))
             return result
         return compute
 

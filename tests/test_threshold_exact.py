@@ -298,6 +298,38 @@ def test_refused_chain_falls_back_to_a_simulation_within_its_stated_error(monkey
         threshold_probabilities(model, 6.0, max_states=10)
 
 
+def test_simulation_answers_when_it_costs_less_than_a_finer_grid(monkeypatch):
+    # with simulation counted as free, a chain that needs a refinement hands over to it, and
+    # the reason says so; counted as dear, the chain refines instead. Both paths are
+    # deterministic (counted work, not timings).
+    model = canonical(SETS["compromise"])
+    loose = dict(atol=0.004, rt_rtol=0.01)
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 0.0)
+    monkeypatch.setattr(threshold_exact, "_FIRST_PAIR_FACTOR", 1e6)  # always refine
+    res = threshold_probabilities(model, 6.0, **loose)
+    assert res.engine == "simulation"
+    assert_within_stated_error(res, model, 6.0, 200_000, 12)
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 1e12)
+    res = threshold_probabilities(model, 6.0, **loose)
+    assert res.engine == "plane" and res.resolution < 1.0
+
+
+def test_predicted_simulation_work_matches_what_the_fallback_uses():
+    # the trials the fallback ends up simulating (three standard errors within the
+    # tolerances) are those predicted from the answer, within the growth of its batches
+    from mdft import _threshold_fallback as fb
+
+    model = canonical(SETS["compromise"])
+    exact = threshold_probabilities(model, 6.0, fallback="raise", atol=0.004, rt_rtol=0.01)
+    steps = float(np.arange(1, exact.max_steps + 1) @ exact.rt_pmf.sum(axis=1))
+    for atol, rt_rtol in ((0.002, 0.01), (0.01, 0.002)):
+        work = fb.predicted_work(exact.max_steps, exact.probabilities, exact.p_undecided,
+                                 exact.rt_pmf, atol, rt_rtol)
+        sim = threshold_probabilities(model, 6.0, max_states=10, atol=atol, rt_rtol=rt_rtol)
+        predicted = max(work / steps, fb.FIRST_BATCH)
+        assert 0.8 * predicted <= sim.n_iter <= 1.6 * predicted, (predicted, sim.n_iter)
+
+
 def test_noise_narrower_than_the_cells_is_refined_not_trusted():
     # small noise (sigma2 = 0.106): at the first resolutions the noise is narrower than the
     # cells over sqrt(3) on both axes, where both resolutions agreed on a mean time 0.9 %
@@ -445,6 +477,26 @@ model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.
 res = mdft.threshold_probabilities(model, 3.0, max_steps=200, atol=0.05, rt_rtol=0.2)
 print(json.dumps([res.probabilities.tolist(), res.mean_response_times.tolist()]))
 """
+
+
+def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition():
+    # One step of the moment chain from a state whose sum is spread around its reference
+    # s_ref with variance delta**2 (no mean deviation): the staying probability is linear
+    # in the sum, T(s) = t0 + t1 (s - s_ref), and the next sum is s' = s_next + b (s - s_ref),
+    # so the first moment reaching the next state is E[s' T(s)] = s_next t0 + b t1 delta**2.
+    from mdft import _plane_moment
+
+    t0, t1, s_ref, s_next, b, delta = 0.6, 0.05, 10.0, 9.0, 0.9, 1.5
+    x = np.array([1.0, 0.0])
+    m = np.array([s_ref, 0.0])
+    q = np.zeros(2)
+    rt_pmf = np.zeros((2, 3))
+    _plane_moment.propagate(
+        np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
+        np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
+        b, delta**2, x, m, q, rt_pmf, np.zeros((1, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(2))
+    assert x[1] == pytest.approx(t0)
+    assert m[1] == pytest.approx(s_next * t0 + b * t1 * delta**2)
 
 
 def test_compiled_and_interpreted_kernels_agree():
