@@ -277,7 +277,7 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
     v_next = np.zeros(n_states)
     v = np.zeros(n_states)
     q = np.zeros((n_states, n_actions))
-    acc_a = np.zeros(n_actions)
+    a4 = n_actions - n_actions % 4
     loglik = 0.0
     for t in range(horizon - 1, -1, -1):
         pol = policy[t if keep else 0]
@@ -292,16 +292,29 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
                         q[s, a] = 0.0
                     continue
                 if shared[s]:
-                    # successor values gathered once; summed over k in order, for all actions at once
+                    # summed over k in order for each action; four actions at a time in registers (the
+                    # compiler packs them into one vector), then the rest one by one
                     pat = pattern_of[s]
-                    for a in range(n_actions):
-                        acc_a[a] = 0.0
-                    for k in range(n_succ):
-                        vk = v_next[succ[s, k]]
-                        for a in range(n_actions):
-                            acc_a[a] += patterns[pat, k, a] * vk
-                    for a in range(n_actions):
-                        q[s, a] = r_bar[s, a] + discount * acc_a[a]
+                    for a in range(0, a4, 4):
+                        c0 = 0.0
+                        c1 = 0.0
+                        c2 = 0.0
+                        c3 = 0.0
+                        for k in range(n_succ):
+                            vk = v_next[succ[s, k]]
+                            c0 += patterns[pat, k, a] * vk
+                            c1 += patterns[pat, k, a + 1] * vk
+                            c2 += patterns[pat, k, a + 2] * vk
+                            c3 += patterns[pat, k, a + 3] * vk
+                        q[s, a] = r_bar[s, a] + discount * c0
+                        q[s, a + 1] = r_bar[s, a + 1] + discount * c1
+                        q[s, a + 2] = r_bar[s, a + 2] + discount * c2
+                        q[s, a + 3] = r_bar[s, a + 3] + discount * c3
+                    for a in range(a4, n_actions):
+                        c0 = 0.0
+                        for k in range(n_succ):
+                            c0 += patterns[pat, k, a] * v_next[succ[s, k]]
+                        q[s, a] = r_bar[s, a] + discount * c0
                 else:
                     for a in range(n_actions):
                         acc = 0.0
@@ -375,6 +388,8 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
     m = np.zeros(n_states)
     m_next = np.zeros(n_states)
     acc = np.zeros(n_succ)
+    mass = np.zeros(n_actions)
+    k4 = n_succ - n_succ % 4
     for t in range(horizon):
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             m[demo_s[i]] -= weight
@@ -385,14 +400,32 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
             if ms == 0.0 or terminal[s]:
                 continue
             if shared[s]:
+                # acc[k] summed over a in order; four successors at a time in registers, then the rest
                 pat = pattern_of[s]
-                for k in range(n_succ):
-                    acc[k] = 0.0
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
+                    mass[a] = la
                     sa[s, a] += la
-                    for k in range(n_succ):
-                        acc[k] += la * patterns_ak[pat, a, k]
+                for k in range(0, k4, 4):
+                    c0 = 0.0
+                    c1 = 0.0
+                    c2 = 0.0
+                    c3 = 0.0
+                    for a in range(n_actions):
+                        la = mass[a]
+                        c0 += la * patterns_ak[pat, a, k]
+                        c1 += la * patterns_ak[pat, a, k + 1]
+                        c2 += la * patterns_ak[pat, a, k + 2]
+                        c3 += la * patterns_ak[pat, a, k + 3]
+                    acc[k] = c0
+                    acc[k + 1] = c1
+                    acc[k + 2] = c2
+                    acc[k + 3] = c3
+                for k in range(k4, n_succ):
+                    c0 = 0.0
+                    for a in range(n_actions):
+                        c0 += mass[a] * patterns_ak[pat, a, k]
+                    acc[k] = c0
                 for k in range(n_succ):
                     ns = succ[s, k]
                     dst[ns] += acc[k]

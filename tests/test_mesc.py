@@ -441,3 +441,38 @@ def test_fast_exp_matches_numpy_exp_within_two_ulp():
     # below exp(-708) the result is 0 (against at most 3e-308); -inf gives 0, nan stays nan
     tail = apply(np.array([-708.5, -745.0, -1e5, -np.inf, np.nan]))
     assert tail[:4].tolist() == [0.0, 0.0, 0.0, 0.0] and np.isnan(tail[4])
+
+
+@settings(deadline=None, max_examples=15)
+@given(seed=st.integers(0, 10_000), n_actions=st.integers(1, 9), n_succ=st.integers(1, 9))
+def test_shared_successor_passes_match_the_general_passes(seed, n_actions, n_succ):
+    # every state lists the same successors for all its actions (the pattern-table passes, which
+    # work on four actions or successors at a time plus a remainder); they must give the policy of
+    # the plain recursion, and L (bit for bit) and its gradient of the passes reading probs directly
+    rng = np.random.default_rng(seed)
+    S, F = 7, 4
+    P = np.zeros((S, n_actions, S))
+    for s in range(S):
+        succ = np.append(rng.choice(S - 1, size=min(n_succ, S) - 1, replace=False), S - 1)  # the goal reachable
+        P[s][:, succ] = rng.random((n_actions, succ.size)) + 0.05
+    P /= P.sum(axis=2, keepdims=True)
+    feats = TransitionFeatures(rng.random((S, F)), rng.random((n_actions, F)), rng.random((S, F)))
+    term = np.zeros(S, dtype=bool)
+    term[S - 1] = True
+    mdp = MDP.from_dense(P, rng.normal(size=(S, n_actions, S)), terminal=term, start=np.eye(S)[0],
+                         discount=float(rng.choice([1.0, 0.9])), features=feats)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # some trajectories are cut at max_steps
+        demos = sample_trajectories(mdp, np.full((S, n_actions), 1.0 / n_actions), 8, rng=seed, max_steps=8)
+    obj = MESCObjective(mdp, demos, horizon=7)
+    assert obj._compact[0][~mdp.terminal].all()
+    general = MESCObjective(mdp, demos, horizon=7)
+    shared, succ, pattern_of, patterns = general._compact
+    general._compact = (np.zeros_like(shared), succ, pattern_of, patterns)
+    w = rng.uniform(0.0, 2.0, F)
+    value, grad = obj(w)
+    ref_value, ref_grad = general(w)
+    assert value == ref_value
+    np.testing.assert_allclose(grad, ref_grad, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(obj.policy(w), soft_value_iteration(mdp.penalised(w), horizon=7).policy, atol=1e-12)
+    assert obj._value(w + 0.25) == general._value(w + 0.25)
