@@ -49,22 +49,16 @@ def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol)
     """Simulated steps that :func:`simulated_answer` would need for a model whose answer is
     about known.
 
-    The trials that three standard errors within ``atol`` and ``rt_rtol`` need follow
-    from the probabilities and the response-time distribution (``rt_pmf``, steps by
-    options), times the mean number of steps per trial.
+    The errors of its stopping rule (:func:`_errors`) are computed for a notional number of
+    trials from the probabilities and the response-time distribution (``rt_pmf``, steps by
+    options); they shrink as one over the square root of the trials, which gives the trials
+    needed, times the mean number of steps per trial.
     """
     times = np.arange(1, rt_pmf.shape[0] + 1, dtype=np.float64)
-    shares = np.append(probabilities, p_undecided)
-    trials = 9.0 * float(np.max(shares * (1.0 - shares))) / atol**2
-    for i, p in enumerate(probabilities):
-        if p <= 0.0:
-            continue
-        mean = times @ rt_pmf[:, i] / p
-        var = max((times**2) @ rt_pmf[:, i] / p - mean * mean, 0.0)
-        weight = min(1.0, p / RT_WEIGHT_FLOOR)
-        # n p trials choose option i: three of its standard errors within rt_rtol / weight
-        trials = max(trials, 9.0 * var * weight**2 / (p * (rt_rtol * mean) ** 2))
-    trials = max(trials, FIRST_BATCH)
+    n = 1e9
+    err_p, err_rt = _errors(n * probabilities, n * p_undecided, n * (times @ rt_pmf),
+                            n * ((times**2) @ rt_pmf))
+    trials = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2), FIRST_BATCH)
     return trials * (float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps)
 
 
