@@ -190,6 +190,56 @@ def test_cheap_features_dropped_together_cost_less_than_one(seed, p_slip):
     assert joint < cost or m == 1
 
 
+def test_a_round_reuses_only_held_costs_far_above_the_cost():
+    # features known far above the cost (HELD_GROWTH**age * cost) keep their value while another
+    # feature is below the cost; when none measured is below it, every held cost is measured afresh
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=2)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), tol=0.03)
+    idx = np.flatnonzero(fit.penalties > 0)
+    assert idx.size >= 4
+    fresh = mesc_selection._held(obj, fit, idx)
+    g = mesc_selection.HELD_GROWTH
+    order = np.argsort(fresh)
+    cost = float(fresh[order[0]]) + 1.0  # the cheapest feature, measured, is below the cost
+    far, near, at_bound = idx[order[1:4]]
+    known = {far: (g * g * cost, 2), near: (g * cost * 0.99, 1), at_bound: (g * cost, 1)}
+
+    def counted(known):
+        o = MESCObjective(world.nominal_mdp, demos)  # a fresh cache: every measured cost is computed
+        held, following = mesc_selection._held_round(o, fit, idx, cost, known)
+        return held, following, o.n_evaluations
+
+    held, following, n = counted(known)
+    reused = {far, at_bound}
+    assert n == idx.size - len(reused)
+    for j, f in enumerate(idx):
+        if f in reused:
+            assert held[j] == known[f][0] and following[f] == (known[f][0], known[f][1] + 1)
+        else:
+            assert held[j] == pytest.approx(fresh[j], rel=1e-12, abs=1e-12) and following[f] == (held[j], 1)
+    # every feature known far above the cost: nothing measured is below it, so every held cost is
+    # measured, and the fresh ones are returned
+    held, following, n = counted({f: (1e9, 1) for f in idx})
+    assert n == idx.size
+    np.testing.assert_allclose(held, fresh, rtol=1e-12, atol=1e-12)
+    assert all(following[f] == (h, 1) for f, h in zip(idx, held))
+
+
+@pytest.mark.parametrize("p_slip, seed", [(0.1, 2), (0.1, 3), (0.0, 1)])
+def test_reusing_far_held_costs_selects_as_measuring_all(monkeypatch, p_slip, seed):
+    # the reuse saves evaluations and (no reused cost falling below the cost here) changes nothing
+    world = load_paper_worlds()[0].replace(p_slip=p_slip)
+    demos = generate_demonstrations(world.constrained_mdp, 100, rng=seed)
+    res = mesc_irl(world.nominal_mdp, demos)
+    monkeypatch.setattr(mesc_selection, "HELD_GROWTH", np.inf)
+    ref = mesc_irl(world.nominal_mdp, demos)
+    np.testing.assert_array_equal(res.penalties, ref.penalties)
+    np.testing.assert_array_equal(res.evidence, ref.evidence)
+    assert res.n_evaluations < ref.n_evaluations
+
+
 def test_zeta_combines_evidence_and_size(small_fit):
     world, _, res = small_fit
     s = res.sigma_nominal
