@@ -68,7 +68,9 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     (bool mask) holds the other penalties at zero; ``scale`` runs the
     solver on ``theta = omega / scale``. Converged means the projected gradient
     of the penalised objective is <= tol on the free coordinates, or
-    L-BFGS-B's relative reduction test passed. scipy's routine is driven by
+    L-BFGS-B's relative reduction test passed; a start (clipped to the
+    bounds) that meets the tolerance is returned as it is (``n_iter`` 0).
+    scipy's routine is driven by
     :func:`irl._lbfgsb.minimize_box` (same iterates as
     ``scipy.optimize.minimize``, which is used when that driver is not
     available).
@@ -111,8 +113,16 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
         high = np.broadcast_to(np.asarray(upper, dtype=np.float64), (F,)) / scale
     if free is not None:
         high = np.where(free, high, 0.0)
+    # a start that already meets the tolerance is the answer (L-BFGS-B would take one step first);
+    # the solver's own first evaluation is this one, served from the objective's cache
+    theta0 = np.clip(w0 / scale, 0.0, high)
+    start = theta0 * scale if scaled else theta0
+    value, grad = obj._evaluate(start)
+    _, grad_pen = penalised(start, value, grad)
+    if projected_gradient_norm(start, grad_pen, upper, free) <= tol:
+        return Fit(start, float(value), grad, 0, True, "projected gradient <= tol at the start")
     solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
-    res = solve(fun, w0 / scale, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)
+    res = solve(fun, theta0, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)
     w = np.clip(res.x * scale, 0.0, upper)
     if free is not None:
         w[~free] = 0.0

@@ -85,6 +85,33 @@ def test_held_coordinates_stay_at_zero_and_the_cap_binds():
     assert fit.value == pytest.approx(-ref.fun, abs=1e-8)
 
 
+@pytest.mark.parametrize("scaled, l1, upper", [(False, 0.05, None), (True, 0.05, None), (False, 0.0, 4.0)])
+def test_a_start_that_meets_the_tolerance_is_returned_after_one_evaluation(scaled, l1, upper):
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=6)
+    F = world.n_features
+    scale = np.random.default_rng(1).uniform(0.5, 2.0, F) if scaled else None
+    free = np.ones(F, dtype=bool)
+    free[3] = False
+    kw = dict(l1=l1, free=free, scale=scale, upper=upper)
+    opt = mesc_solvers.lbfgsb(MESCObjective(world.nominal_mdp, demos), np.zeros(F), tol=1e-6, **kw)
+    assert mesc_solvers.projected_gradient_norm(opt.penalties, opt.gradient - l1, upper, free) <= 1e-4
+    obj = MESCObjective(world.nominal_mdp, demos)
+    start = opt.penalties.copy()
+    start[3] = 5.0  # a held coordinate is set to zero first
+    fit = mesc_solvers.lbfgsb(obj, start, tol=1e-3, **kw)
+    assert fit.n_iter == 0 and fit.converged and obj.n_evaluations == 1
+    np.testing.assert_allclose(fit.penalties, opt.penalties, rtol=1e-12, atol=1e-12)
+    value, grad = obj(fit.penalties)
+    assert fit.value == value and np.array_equal(fit.gradient, grad)
+    # a start that does not meet it is improved
+    worse = opt.penalties * 0.5
+    assert mesc_solvers.projected_gradient_norm(worse, obj(worse)[1] - l1, upper, free) > 1e-3
+    fit = mesc_solvers.lbfgsb(obj, worse, tol=1e-3, **kw)
+    assert fit.n_iter >= 1 and fit.converged
+    assert fit.value - l1 * fit.penalties.sum() > obj(worse)[0] - l1 * worse.sum()
+
+
 def test_a_scalar_cap_binds_on_the_penalties_whatever_the_scaling():
     # the cap applies to omega, also when the solver runs on theta = omega / scale
     world = small_world(0.0)
