@@ -38,6 +38,10 @@ module selects the constraints the demonstrations give evidence for:
    the cells of that colour); the first whose refitted cost is below
    ``cost`` is removed. When none is, their refitted costs are their evidence
    ``e_f = N (L_S - L_{S without f})`` (nats, over all demonstrations).
+   These refits run at the screening tolerance, and at ``FAR_TOL`` (3) times
+   it while the loss is at least ``FAR_LOSS`` (100) times ``cost``: such
+   evidence is a looser upper bound, where zeta no longer depends on it
+   (``sigmoid(e - cost)`` is 1 to double precision from ``e - cost`` = 37).
 3. **Probability** (in :class:`irl.mesc.MESCResult`).
    ``sigmoid(e_f - cost)`` is the posterior probability that f belongs to
    the model in the Laplace (BIC-type) approximation of the posterior odds of
@@ -65,6 +69,9 @@ SUPPORT_EPS = 1e-8  # a penalty above this counts as selected by an L1 fit
 # a held cost measured a rounds of removals ago is reused while it is at least HELD_GROWTH**a * cost
 # (module docstring, step 2)
 HELD_GROWTH = 4.0
+# a refit without a feature stops at FAR_TOL times its tolerance while the loss is FAR_LOSS * cost or more
+FAR_LOSS = 100.0
+FAR_TOL = 3.0
 
 
 def evidence_cost(n_decisions, n_features):
@@ -143,6 +150,23 @@ def _cheap_run(obj, fit, idx, held, cost):
 
 def _refit(obj, w0, support, opts):
     return mesc_solvers.lbfgsb(obj, np.where(support, w0, 0.0), free=support, **opts)
+
+
+def _refit_without(obj, fit, support, cost, opts):
+    """Refit on ``support`` (``fit``'s without one feature), looser while the loss is far above ``cost``.
+
+    While ``N (L_fit - L)`` at an iterate is at least ``FAR_LOSS * cost``, the
+    refit stops at ``FAR_TOL`` times the tolerance. The loss only falls as the
+    refit proceeds, so a loss measured this way is an upper bound of the one
+    at the tolerance; the decision it serves (below ``cost`` or not) would
+    change only if the rest of the refit took off 99% of it.
+    """
+    n, far, loose = obj.n_demonstrations, FAR_LOSS * cost, FAR_TOL * opts["tol"]
+
+    def tol_at(value):
+        return loose if n * (fit.value - value) >= far else opts["tol"]
+
+    return _refit(obj, fit.penalties, support, dict(opts, tol_at=tol_at))
 
 
 def path_strengths(lam_max, lam_cost, n_lambda):
@@ -230,7 +254,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         for f in idx[np.argsort(held, kind="stable")]:
             s2 = support.copy()
             s2[f] = False
-            r = _refit(obj, fit.penalties, s2, path_opts)
+            r = _refit_without(obj, fit, s2, cost, path_opts)
             n_fits += 1
             drops.append((N * (fit.value - r.value), f, s2, r))
             if drops[-1][0] < cost:  # rejected: the others need no refit this round

@@ -61,7 +61,8 @@ def projected_gradient_norm(w, grad, upper, free):
     return float(pg.max()) if pg.size else 0.0
 
 
-def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e-3, max_iter=1000, maxcor=40):
+def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e-3, max_iter=1000, maxcor=40,
+           tol_at=None):
     """Maximise the (penalised) likelihood with L-BFGS-B; see the module docstring.
 
     ``upper`` is None, a number or an array (``inf`` for no bound); ``free``
@@ -70,6 +71,8 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     of the penalised objective is <= tol on the free coordinates, or
     L-BFGS-B's relative reduction test passed; a start (clipped to the
     bounds) that meets the tolerance is returned as it is (``n_iter`` 0).
+    ``tol_at``, if given, maps L at an iterate to the tolerance there
+    (never below ``tol``).
     scipy's routine is driven by
     :func:`irl._lbfgsb.minimize_box` (same iterates as
     ``scipy.optimize.minimize``, which is used when that driver is not
@@ -94,15 +97,17 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
         # theta is the solver's own copy (neither solver path changes it later); with no scaling
         # theta * 1.0 and -grad * 1.0 would be theta and -grad bit for bit, so they are skipped
         w = theta * scale if scaled else theta
-        value, grad = penalised(w, *obj._evaluate(w))
-        last["theta"], last["grad"] = theta, grad
+        loglik, grad = obj._evaluate(w)
+        value, grad = penalised(w, loglik, grad)
+        last["theta"], last["grad"], last["loglik"] = theta, grad, loglik
         return -value, (-grad * scale if scaled else -grad)
 
     done = {"converged": False}
 
     def callback(theta):
         if "theta" in last and np.array_equal(theta, last["theta"]):
-            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= tol:
+            t = tol if tol_at is None else max(tol, tol_at(last["loglik"]))
+            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= t:
                 done["converged"] = True
                 return True
         return False
@@ -119,7 +124,8 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     start = theta0 * scale if scaled else theta0
     value, grad = obj._evaluate(start)
     _, grad_pen = penalised(start, value, grad)
-    if projected_gradient_norm(start, grad_pen, upper, free) <= tol:
+    t = tol if tol_at is None else max(tol, tol_at(value))
+    if projected_gradient_norm(start, grad_pen, upper, free) <= t:
         return Fit(start, float(value), grad, 0, True, "projected gradient <= tol at the start")
     solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
     res = solve(fun, theta0, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)

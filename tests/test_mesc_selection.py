@@ -112,6 +112,73 @@ def test_a_start_that_meets_the_tolerance_is_returned_after_one_evaluation(scale
     assert fit.value - l1 * fit.penalties.sum() > obj(worse)[0] - l1 * worse.sum()
 
 
+def test_a_tolerance_that_depends_on_the_likelihood_stops_earlier_on_the_same_iterates():
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=8)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    w0 = np.zeros(world.n_features)
+    tight = mesc_solvers.lbfgsb(obj, w0, l1=0.02, tol=1e-5)
+    seen = []
+
+    def loose_below(value):  # loose while L is below the tight optimum by more than 0.5
+        seen.append(value)
+        return 0.2 if value < tight.value - 0.5 else 0.0
+
+    loose = mesc_solvers.lbfgsb(obj, w0, l1=0.02, tol=1e-5, tol_at=loose_below)
+    assert seen and loose.converged and loose.n_iter <= tight.n_iter
+    pg = mesc_solvers.projected_gradient_norm(loose.penalties, loose.gradient - 0.02, None, None)
+    # it stopped where L was still far below the optimum, at the loose tolerance
+    assert loose.value < tight.value - 0.5 and 1e-5 < pg <= 0.2 and loose.n_iter < tight.n_iter
+    # a tolerance below tol does not tighten the fit: the same run as without tol_at
+    same = mesc_solvers.lbfgsb(obj, w0, l1=0.02, tol=1e-5, tol_at=lambda v: 0.0)
+    np.testing.assert_array_equal(same.penalties, tight.penalties)
+    assert same.n_iter == tight.n_iter
+
+
+def test_a_refit_without_a_feature_is_looser_only_while_its_loss_is_far_above_the_cost(monkeypatch):
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=3)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    F = world.n_features
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(F), tol=1e-4)
+    f = int(np.argmax(fit.penalties))
+    support = fit.penalties > 0
+    support[f] = False
+    opts = dict(tol=1e-3)
+    exact = mesc_selection._refit(obj, fit.penalties, support, opts)
+    loss = obj.n_demonstrations * (fit.value - exact.value)
+    assert loss > 1.0
+    # never far: the plain refit; always far: the refit at FAR_TOL times the tolerance
+    monkeypatch.setattr(mesc_selection, "FAR_LOSS", np.inf)
+    r = mesc_selection._refit_without(obj, fit, support, 1.0, opts)
+    np.testing.assert_array_equal(r.penalties, exact.penalties)
+    monkeypatch.setattr(mesc_selection, "FAR_LOSS", 0.0)
+    r = mesc_selection._refit_without(obj, fit, support, 1.0, opts)
+    ref = mesc_selection._refit(obj, fit.penalties, support, dict(tol=mesc_selection.FAR_TOL * 1e-3))
+    np.testing.assert_array_equal(r.penalties, ref.penalties)
+    # stopped earlier on the same iterates: its loss is an upper bound of the loss at the tolerance
+    assert obj.n_demonstrations * (fit.value - r.value) >= loss
+
+
+@pytest.mark.parametrize("seed", [0, 8])
+def test_looser_far_evidence_changes_no_selection(monkeypatch, seed):
+    # Figure 1 world with slip: the refits of features whose loss stays far above the cost stop
+    # earlier; selection, penalties and zeta are those of refits at the screening tolerance, and
+    # their evidence is an upper bound of it
+    world = load_paper_worlds()[0].replace(p_slip=0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 100, rng=seed)
+    res = mesc_irl(world.nominal_mdp, demos)
+    monkeypatch.setattr(mesc_selection, "FAR_TOL", 1.0)
+    ref = mesc_irl(world.nominal_mdp, demos)
+    np.testing.assert_array_equal(res.penalties, ref.penalties)
+    np.testing.assert_array_equal(res.zeta, ref.zeta)
+    assert np.all(res.evidence >= ref.evidence)
+    # a loose stop leaves a loss of at least FAR_LOSS * cost: evidence below that is the same
+    near = res.evidence < mesc_selection.FAR_LOSS * res.evidence_cost
+    assert not near.all() and np.array_equal(res.evidence[near], ref.evidence[near])
+    assert res.n_evaluations < ref.n_evaluations
+
+
 def test_a_scalar_cap_binds_on_the_penalties_whatever_the_scaling():
     # the cap applies to omega, also when the solver runs on theta = omega / scale
     world = small_world(0.0)
