@@ -122,6 +122,9 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, gl_x, gl_w):
     step = (hi - lo) / n_pan
     acc = 0.0
     norm = 1.0 / (sx * math.sqrt(2.0 * math.pi))
+    # the cell's own edges recur at most nodes: their normal CDFs are taken once
+    cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
+    cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
     for p in range(n_pan):
         mid = lo + (p + 0.5) * step
         for q in range(gl_x.shape[0]):
@@ -130,7 +133,12 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, gl_x, gl_w):
             if b <= a:
                 continue
             u = (x - mx) / sx
-            acc += gl_w[q] * norm * math.exp(-0.5 * u * u) * interval_mass(a, b, my, sy)
+            if sy > 0.0:
+                mass = ((cdf_hi if b == yhi else phi_cdf((b - my) / sy))
+                        - (cdf_lo if a == ylo else phi_cdf((a - my) / sy)))
+            else:
+                mass = interval_mass(a, b, my, sy)
+            acc += gl_w[q] * norm * math.exp(-0.5 * u * u) * mass
     return acc * 0.5 * step
 
 
