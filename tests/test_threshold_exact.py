@@ -621,3 +621,25 @@ def test_slow_start_is_not_mistaken_for_the_geometric_tail():
     res = threshold_probabilities(model, 30.0, max_steps=3000)
     assert res.p_undecided < 1e-3
     assert_matches_simulation(res, model, 30.0, 20_000, 8, max_steps=3000)
+
+
+def test_pilot_passes_run_one_step_coarser_than_the_counted_passes(monkeypatch):
+    """The pilots (which only fit the reference sums) use the grid of resolution 2; the spread
+    pass and every counted pass keep the schedule 1.41, 1, 0.71, ... (docs, section 2)."""
+    built = []
+    original = threshold_exact.build_moment_chain
+
+    def recording(model, theta, kappa, *args):
+        built.append(kappa)
+        return original(model, theta, kappa, *args)
+
+    monkeypatch.setattr(threshold_exact, "build_moment_chain", recording)
+    model = MDFTModel([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+                      beta=12.0)
+    res = threshold_probabilities(model, 12.0, max_steps=2_000, fallback="raise")
+    first = math.sqrt(2.0)
+    assert built[:2] == pytest.approx([2.0, 2.0])  # the two pilots
+    assert built[2:4] == pytest.approx([first, first])  # the first pass and its spread pass
+    counted = sorted(set(np.round(built[2:], 9)), reverse=True)
+    assert counted == pytest.approx([first / math.sqrt(2.0) ** k for k in range(len(counted))])
+    assert res.resolution == pytest.approx(counted[-1])
