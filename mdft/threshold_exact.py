@@ -582,7 +582,9 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     def make(k, first):
         def compute():
             if first:
-                pilot(k)
+                # the pilots fit the reference sums on a grid one step coarser (a quarter of the
+                # nonzeros): the fit is a plane and a spread, which need no finer grid
+                pilot(k * _REFINE)
             result = run(k, state["delta"])
             if first and state["delta"] > 0.0:
                 # the closure's error: the change that a spread of the sum within the states

@@ -621,3 +621,69 @@ def test_slow_start_is_not_mistaken_for_the_geometric_tail():
     res = threshold_probabilities(model, 30.0, max_steps=3000)
     assert res.p_undecided < 1e-3
     assert_matches_simulation(res, model, 30.0, 20_000, 8, max_steps=3000)
+
+
+def test_pilot_passes_run_one_step_coarser_than_the_counted_passes(monkeypatch):
+    """The pilots (which only fit the reference sums) use the grid of resolution 2; the spread
+    pass and every counted pass keep the schedule 1.41, 1, 0.71, ... (docs, section 2)."""
+    built = []
+    original = threshold_exact.build_moment_chain
+
+    def recording(model, theta, kappa, *args):
+        built.append(kappa)
+        return original(model, theta, kappa, *args)
+
+    monkeypatch.setattr(threshold_exact, "build_moment_chain", recording)
+    model = MDFTModel([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+                      beta=12.0)
+    res = threshold_probabilities(model, 12.0, max_steps=2_000, fallback="raise")
+    first = math.sqrt(2.0)
+    assert built[:2] == pytest.approx([2.0, 2.0])  # the two pilots
+    assert built[2:4] == pytest.approx([first, first])  # the first pass and its spread pass
+    counted = sorted(set(np.round(built[2:], 9)), reverse=True)
+    assert counted == pytest.approx([first / math.sqrt(2.0) ** k for k in range(len(counted))])
+    assert res.resolution == pytest.approx(counted[-1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(0.2, 2.0), st.floats(0.2, 2.0),
+       st.floats(0.3, 1.5), st.floats(0.3, 1.5), st.floats(-1.5, 1.5), st.floats(0.0, math.pi))
+def test_cut_cell_mass_matches_a_fine_column_sum(mx, my, sx, sy, hx, hy, offset, turn):
+    """The Gaussian mass of a cell cut by the three threshold lines (``_plane.cut_mass``)
+    against a 200,000-column midpoint sum over the cell (exact in y), in bases where a line
+    may run parallel to an axis (the integrand then jumps) or cross the cell's corners."""
+    from mdft import _lattice, _plane
+
+    # an orthonormal basis of the zero-sum plane, turned by `turn`; below 0.3 the first line
+    # is exactly parallel to the y axis
+    E = np.c_[np.array([2.0, -1.0, -1.0]) / math.sqrt(6.0), np.array([0.0, 1.0, -1.0]) / math.sqrt(2.0)]
+    if turn >= 0.3:
+        E = E @ np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    ex, ey = np.ascontiguousarray(E[:, 0]), np.ascontiguousarray(E[:, 1])
+    normal = np.array([ex[0], ey[0]])
+    centre = np.array([0.3, -0.2]) + offset * normal / np.linalg.norm(normal) * 0.3
+    bound = float(normal @ centre) + 0.1
+    xlo, xhi = centre[0] - hx / 2, centre[0] + hx / 2
+    ylo, yhi = centre[1] - hy / 2, centre[1] + hy / 2
+    got = _plane.cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound,
+                          _lattice._GL_X, _lattice._GL_W)
+    n = 200_000
+    xs = xlo + (np.arange(n) + 0.5) * hx / n
+    a = np.full(n, ylo)
+    b = np.full(n, yhi)
+    for i in range(3):
+        rest = bound - ex[i] * xs
+        if abs(ey[i]) > 1e-14:
+            lim = rest / ey[i]
+            if ey[i] > 0:
+                b = np.minimum(b, lim)
+            else:
+                a = np.maximum(a, lim)
+        else:
+            b = np.where(rest <= 0.0, a, b)
+    col = np.where(b > a, ndtr((b - my) / sy) - ndtr((a - my) / sy), 0.0)
+    dens = np.exp(-0.5 * ((xs - mx) / sx) ** 2) / (sx * math.sqrt(2.0 * math.pi))
+    want = float((dens * col).sum() * hx / n)
+    full = float((dens * (ndtr((yhi - my) / sy) - ndtr((ylo - my) / sy))).sum() * hx / n)
+    # the column sum's own error is of the order of one column's mass where the integrand jumps
+    assert abs(got - want) <= 2e-5 * full + 1e-12
