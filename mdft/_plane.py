@@ -139,7 +139,7 @@ def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out):
 
 
 @njit
-def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, gl_x, gl_w):
+def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     """Gaussian mass ``N(mx, sx^2) x N(my, sy^2)`` of the cell ``[xlo, xhi) x [ylo, yhi)``
     cut by the half-planes ``ex[i] x + ey[i] y < bound``.
 
@@ -147,9 +147,8 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, gl_x, gl_w):
     the range is split where the inside part of the column changes form
     (:func:`_breaks`), so that each piece is smooth, and each piece is
     integrated by composite six-point Gauss-Legendre on panels no wider than
-    ``sx`` (``gl_x`` and ``gl_w`` are not used: the signature is shared with the
-    callers of the bivariate tails). A component much narrower than the cell
-    along ``x`` is taken as a point there.
+    ``sx``. A component much narrower than the cell along ``x`` is taken as a
+    point there.
     """
     width = xhi - xlo
     if sx <= width / 64.0:

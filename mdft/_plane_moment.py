@@ -111,8 +111,7 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
                         continue
                     if kind == 1:
                         v = cut_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
-                                     c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound,
-                                     gl_x, gl_w)
+                                     c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound)
                         if v < _CUT:
                             continue
                     tmp[a, b] = v
