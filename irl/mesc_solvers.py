@@ -104,10 +104,13 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
 
     done = {"converged": False}
 
+    def tolerance(loglik):
+        return tol if tol_at is None else max(tol, tol_at(loglik))
+
     def callback(theta):
         if "theta" in last and np.array_equal(theta, last["theta"]):
-            t = tol if tol_at is None else max(tol, tol_at(last["loglik"]))
-            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= t:
+            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= tolerance(
+                    last["loglik"]):
                 done["converged"] = True
                 return True
         return False
@@ -124,8 +127,7 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     start = theta0 * scale if scaled else theta0
     value, grad = obj._evaluate(start)
     _, grad_pen = penalised(start, value, grad)
-    t = tol if tol_at is None else max(tol, tol_at(value))
-    if projected_gradient_norm(start, grad_pen, upper, free) <= t:
+    if projected_gradient_norm(start, grad_pen, upper, free) <= tolerance(value):
         return Fit(start, float(value), grad, 0, True, "projected gradient <= tol at the start")
     solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
     res = solve(fun, theta0, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)
