@@ -4,7 +4,7 @@
 ``scipy.optimize._lbfgsb.setulb`` directly, with the settings, stopping tests
 and callback logic of ``scipy.optimize.minimize(method="L-BFGS-B")``
 (written for scipy 1.17; memory ``maxcor``, ``factr = ftol / eps`` with scipy's
-default ``ftol``, ``pgtol = 0``, at most 20 line-search steps, the iteration and
+default ``ftol`` unless another is given, ``pgtol = 0``, at most 20 line-search steps, the iteration and
 evaluation limits checked after each iteration). Given the same objective it
 takes the same iterates, bit for bit, and returns the same point, iteration
 count, success flag and message. What it leaves out is scipy's work around the
@@ -59,7 +59,7 @@ class BoxResult:
     message: str
 
 
-def minimize_box(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None):
+def minimize_box(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None, ftol=FTOL):
     """Minimise ``fun`` on ``0 <= x <= upper`` with scipy's L-BFGS-B routine, driven directly.
 
     ``fun(x)`` returns ``(f, gradient)`` (a float and a float64 array); it
@@ -67,8 +67,9 @@ def minimize_box(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None):
     bound); ``callback(x)`` is called after each iteration and returns True to
     stop. The settings and results are those of ``scipy.optimize.minimize(fun,
     x0, jac=True, method="L-BFGS-B", bounds=Bounds(0, upper), options={"maxiter":
-    maxiter, "gtol": 0.0, "maxfun": maxfun, "maxcor": maxcor})`` with a callback
-    that raises StopIteration where ours returns True.
+    maxiter, "gtol": 0.0, "maxfun": maxfun, "maxcor": maxcor, "ftol": ftol})`` with a
+    callback that raises StopIteration where ours returns True. ``ftol = 0``
+    turns the relative reduction test off.
     """
     n = x0.size
     low = np.zeros(n)
@@ -93,7 +94,7 @@ def minimize_box(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None):
     lsave = np.zeros(4, dtype=np.int32)
     isave = np.zeros(44, dtype=np.int32)
     dsave = np.zeros(29)
-    factr = FTOL / np.finfo(float).eps
+    factr = ftol / np.finfo(float).eps
     nit = 0
     halted = False
     while True:
@@ -123,7 +124,7 @@ def minimize_box(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None):
     return BoxResult(x, nit, nfev, bool(task[0] == _CONVERGENCE), message)
 
 
-def minimize_box_scipy(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None):
+def minimize_box_scipy(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None, ftol=FTOL):
     """:func:`minimize_box` through ``scipy.optimize.minimize`` (the reference, and the fallback)."""
 
     def halt(intermediate_result):
@@ -132,7 +133,7 @@ def minimize_box_scipy(fun, x0, upper, *, maxcor, maxiter, maxfun, callback=None
 
     res = minimize(
         fun, x0, jac=True, method="L-BFGS-B", bounds=Bounds(np.zeros(x0.size), upper), callback=halt,
-        options={"maxiter": maxiter, "gtol": 0.0, "maxfun": maxfun, "maxcor": maxcor},
+        options={"maxiter": maxiter, "gtol": 0.0, "maxfun": maxfun, "maxcor": maxcor, "ftol": ftol},
     )
     return BoxResult(res.x, int(res.get("nit", 0)), int(res.nfev), bool(res.success), str(res.message))
 

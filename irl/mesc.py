@@ -545,21 +545,24 @@ def _eg_options(eg_options):
 
 
 def _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts):
-    """Run the chosen optimiser and selection; returns ``(fit, evidence or None, number of fits)``."""
+    """Run the chosen optimiser and selection.
+
+    Returns ``(fit, evidence or None, number of fits, messages of the other fits that did not converge)``.
+    """
     if optimizer == "eg":
         if max_penalty is not None:
             eg = dict(eg, cap=max_penalty)
-        return mesc_solvers.exponentiated_gradient(obj, obj.n_features, l1=l1 or 0.0, **eg), None, 1
+        return mesc_solvers.exponentiated_gradient(obj, obj.n_features, l1=l1 or 0.0, **eg), None, 1, ()
     if selection == "evidence":
         sel = mesc_selection.select(obj, cost=cost, opts=opts)
-        return sel.fit, sel.evidence, sel.n_fits
+        return sel.fit, sel.evidence, sel.n_fits, sel.unconverged
     if selection == "l1":
         strength = cost / obj.n_demonstrations if l1 is None else l1
         fit = mesc_solvers.lbfgsb(obj, w0, l1=strength, **opts)
         # a penalty below sigma_N has a size factor below 1/2, so its zeta stays below 1/2 whatever its
         # evidence: its evidence is not measured (one evaluation each)
-        return fit, mesc_selection.held_evidence(obj, fit, min_penalty=feasible_reward_sd(obj.nominal)), 1
-    return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1
+        return fit, mesc_selection.held_evidence(obj, fit, min_penalty=feasible_reward_sd(obj.nominal)), 1, ()
+    return mesc_solvers.lbfgsb(obj, w0, l1=l1 or 0.0, l2=l2, **opts), None, 1, ()
 
 
 def mesc_irl(
@@ -633,10 +636,12 @@ def mesc_irl(
     max_iter : int
         L-BFGS-B iterations of each fit.
     tol : float
-        A fit stops when the largest component of the projected gradient of
-        its objective is <= tol (expected feature visits per
-        demonstration), or when L-BFGS-B's relative change falls below its
-        ``ftol``.
+        A fit converges when the largest component of the projected gradient
+        of its objective is <= tol (expected feature visits per
+        demonstration). When L-BFGS-B stops by its relative reduction test
+        (``ftol``) or a failed line search above tol, it is restarted from
+        its iterate (fresh memory, at most 3 times); a fit that still ends
+        above tol is reported as not converged.
     precondition : bool or "auto"
         Run L-BFGS-B on ``theta = omega * sqrt(c + 0.01)``, c the expected plus
         empirical feature counts at the start point (a diagonal scaling that
@@ -657,7 +662,8 @@ def mesc_irl(
     Warns
     -----
     RuntimeWarning
-        When an L-BFGS-B fit stops without meeting its convergence criteria.
+        When an L-BFGS-B fit ends above its tolerance (then ``converged`` is
+        False and ``message`` says which fits and where they stopped).
 
     Notes
     -----
@@ -735,14 +741,17 @@ def mesc_irl(
     opts = dict(upper=upper, scale=scale, tol=tol, max_iter=max_iter, maxcor=maxcor)
 
     with mesc_solvers.single_blas_thread():
-        fit, evidence, n_fits = _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts)
-    if optimizer == "lbfgsb" and not fit.converged:
-        warnings.warn(f"mesc_irl: L-BFGS-B did not converge ({fit.message}); raise max_iter", RuntimeWarning,
-                      stacklevel=2)
+        fit, evidence, n_fits, earlier = _fit(obj, selection, optimizer, w0, l1, l2, cost, eg, max_penalty, opts)
     message = fit.message if n_fits == 1 else f"{n_fits} fits; last: {fit.message}"
+    if earlier:
+        message += f"; {len(earlier)} other fit{'s' if len(earlier) > 1 else ''} above tol (first: {earlier[0]})"
+    converged = fit.converged and not earlier
+    if optimizer == "lbfgsb" and not converged:
+        warnings.warn(f"mesc_irl: L-BFGS-B did not converge ({message}); raise max_iter or tol", RuntimeWarning,
+                      stacklevel=2)
     return MESCResult.from_penalties(
         nominal, fit.penalties, objective=fit.value, gradient=fit.gradient,
         horizon=obj.horizon, n_demonstrations=obj.n_demonstrations, n_iter=fit.n_iter,
-        n_evaluations=obj.n_evaluations, converged=fit.converged, message=message,
+        n_evaluations=obj.n_evaluations, converged=converged, message=message,
         evidence=evidence, evidence_cost=None if evidence is None else cost, selection=selection,
     )

@@ -90,6 +90,7 @@ class Selection:
     path_lambdas: np.ndarray  # L1 strengths visited (per demonstration)
     path_sizes: np.ndarray  # support size at each
     n_fits: int
+    unconverged: tuple  # messages of the other fits (of n_fits, not fit) that did not meet their tolerance
 
 
 def _held(obj, fit, features):
@@ -187,7 +188,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     zeros = np.zeros(F)
     value0, grad0 = obj._evaluate(zeros)
     lam_max = float(grad0.max()) if F else 0.0
-    n_fits = 0
+    ran = []  # every fit made, in order
     empty = mesc_solvers.Fit(zeros, float(value0), grad0, 0, True, "no feature has evidence")
     best = (N * value0, np.zeros(F, dtype=bool), empty)
     lambdas, sizes = [], []
@@ -200,7 +201,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         path_opts = dict(opts, tol=30.0 * opts["tol"])
         for lam in path_strengths(lam_max, cost / N, n_lambda):
             l1_fit = mesc_solvers.lbfgsb(obj, w, l1=float(lam), **path_opts)
-            n_fits += 1
+            ran.append(l1_fit)
             w = l1_fit.penalties
             support = w > SUPPORT_EPS
             lambdas.append(lam)
@@ -210,7 +211,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
                 continue
             seen.add(key)
             refit = _refit(obj, w, support, path_opts)
-            n_fits += 1
+            ran.append(refit)
             score = N * refit.value - support.sum()
             if score > best[0]:
                 best = (score, support, refit)
@@ -229,7 +230,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         # (Akaike's score sums over the support): the elimination starts from the union
         support |= beyond
         fit = _refit(obj, np.where(best[1], fit.penalties, last), support, path_opts)
-        n_fits += 1
+        ran.append(fit)
     evidence = np.zeros(F)
     tight = False  # fit is a refit at the final tolerance
     known = {}  # held costs of the rounds of removals since they were last all measured
@@ -240,14 +241,14 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         if held.min() < cost:
             support[_cheap_run(obj, fit, idx, held, cost)] = False
             fit = _refit(obj, fit.penalties, support, path_opts)
-            n_fits += 1
+            ran.append(fit)
             tight = False
             known = following
             continue
         known = {}
         if not tight:
             fit = _refit(obj, fit.penalties, support, opts)
-            n_fits += 1
+            ran.append(fit)
             tight = True
         # every feature survives with the others held: refit without each to see redundancy
         drops = []
@@ -255,7 +256,7 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
             s2 = support.copy()
             s2[f] = False
             r = _refit_without(obj, fit, s2, cost, path_opts)
-            n_fits += 1
+            ran.append(r)
             drops.append((N * (fit.value - r.value), f, s2, r))
             if drops[-1][0] < cost:  # rejected: the others need no refit this round
                 break
@@ -268,8 +269,10 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         break
     if support.any() and not tight:
         fit = _refit(obj, fit.penalties, support, opts)
-        n_fits += 1
-    return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), n_fits)
+        ran.append(fit)
+    unconverged = [run.message for run in ran if not run.converged and run is not fit]
+    return Selection(fit, support, evidence, cost, np.array(lambdas), np.array(sizes, dtype=np.int64), len(ran),
+                     tuple(unconverged))
 
 
 def held_evidence(obj, fit, min_penalty=0.0):

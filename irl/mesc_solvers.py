@@ -26,6 +26,7 @@ from threadpoolctl import ThreadpoolController
 
 from . import _lbfgsb
 
+MAX_RESTARTS = 3  # restarts of L-BFGS-B stopped by its own tests above the tolerance (see lbfgsb)
 _CONTROLLER: list[ThreadpoolController] = []  # one ThreadpoolController, made on first use (it scans the loaded libraries)
 
 
@@ -68,11 +69,17 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     ``upper`` is None, a number or an array (``inf`` for no bound); ``free``
     (bool mask) holds the other penalties at zero; ``scale`` runs the
     solver on ``theta = omega / scale``. Converged means the projected gradient
-    of the penalised objective is <= tol on the free coordinates, or
-    L-BFGS-B's relative reduction test passed; a start (clipped to the
-    bounds) that meets the tolerance is returned as it is (``n_iter`` 0).
-    ``tol_at``, if given, maps L at an iterate to the tolerance there
-    (never below ``tol``).
+    of the penalised objective is <= tol on the free coordinates, and
+    nothing else; a start (clipped to the bounds) that meets the tolerance
+    is returned as it is (``n_iter`` 0). ``tol_at``, if given, maps L at an
+    iterate to the tolerance there (never below ``tol``).
+    When L-BFGS-B stops by its own tests above the tolerance (the relative
+    reduction of the objective below ``ftol``, or a line search that finds no
+    decrease), it is restarted from its iterate with a fresh memory and the
+    reduction test off, at most ``MAX_RESTARTS`` times and within
+    ``max_iter`` iterations in all; a run that still ends above the
+    tolerance is reported as not converged, its message saying where it
+    stopped.
     scipy's routine is driven by
     :func:`irl._lbfgsb.minimize_box` (same iterates as
     ``scipy.optimize.minimize``, which is used when that driver is not
@@ -130,15 +137,29 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     if projected_gradient_norm(start, grad_pen, upper, free) <= tolerance(value):
         return Fit(start, float(value), grad, 0, True, "projected gradient <= tol at the start")
     solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
-    res = solve(fun, theta0, high, maxcor=maxcor, maxiter=max_iter, maxfun=20 * max_iter, callback=callback)
-    w = np.clip(res.x * scale, 0.0, upper)
-    if free is not None:
-        w[~free] = 0.0
-    value, grad = obj._evaluate(w)
-    _, grad_pen = penalised(w, value, grad)
-    converged = done["converged"] or projected_gradient_norm(w, grad_pen, upper, free) <= tol or res.success
-    message = "projected gradient <= tol" if done["converged"] else res.message
-    return Fit(w, float(value), grad, res.nit, bool(converged), message)
+    theta, nit, nfev, restarts, ftol = theta0, 0, 0, 0, _lbfgsb.FTOL
+    while True:
+        res = solve(fun, theta, high, maxcor=maxcor, maxiter=max_iter - nit, maxfun=20 * max_iter - nfev,
+                    callback=callback, ftol=ftol)
+        nit, nfev = nit + res.nit, nfev + res.nfev
+        w = np.clip(res.x * scale, 0.0, upper)
+        if free is not None:
+            w[~free] = 0.0
+        value, grad = obj._evaluate(w)  # the last iterate: usually served from the objective's cache
+        _, grad_pen = penalised(w, value, grad)
+        pg = projected_gradient_norm(w, grad_pen, upper, free)
+        converged = done["converged"] or pg <= tolerance(value)
+        limited = nit >= max_iter or nfev > 20 * max_iter
+        if converged or limited or restarts >= MAX_RESTARTS or (restarts and np.array_equal(res.x, theta)):
+            break
+        # stopped by the routine's own tests above the tolerance: again from here, fresh memory, no reduction test
+        theta, restarts, ftol = res.x, restarts + 1, 0.0
+    if converged:
+        message = "projected gradient <= tol"
+    else:
+        message = (f"projected gradient {pg:.3g} > tol {tolerance(value):.3g} after {restarts} restart"
+                   f"{'' if restarts == 1 else 's'} ({res.message})")
+    return Fit(w, float(value), grad, nit, bool(converged), message)
 
 
 def exponentiated_gradient(obj, n_features, *, steps=500, lr=0.3, clip=10.0, init=1e-6, burn_in=50,

@@ -1,5 +1,6 @@
 """Tests of MESC-IRL's sparse selection, its evidence, the paper's optimiser and BLAS threading."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -56,6 +57,72 @@ def test_l1_fit_meets_its_optimality_conditions(seed, lam, p_slip):
     for _ in range(5):
         w = np.maximum(fit.penalties + rng.normal(0, 0.3, world.n_features), 0.0)
         assert obj(w)[0] - lam * w.sum() <= best + 1e-7
+
+
+def test_l1_fit_stopped_by_the_reduction_test_is_restarted_until_it_meets_the_tolerance():
+    # found by the test above: L-BFGS-B's relative reduction test stopped this fit with a projected
+    # gradient of 5e-3 (tol 1e-6), and it was reported converged
+    world = small_world(0.1)
+    demos = generate_demonstrations(world.constrained_mdp, 15, rng=8140)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    lam = 0.035
+    fit = mesc_solvers.lbfgsb(obj, np.zeros(world.n_features), l1=lam, tol=1e-6, max_iter=5000)
+    assert fit.converged and fit.message == "projected gradient <= tol"
+    assert mesc_solvers.projected_gradient_norm(fit.penalties, fit.gradient - lam, None, None) <= 1e-6
+    pos = fit.penalties > 1e-6
+    np.testing.assert_allclose(fit.gradient[pos], lam, atol=1e-6)
+    assert np.all(fit.gradient[~pos] <= lam + 1e-6)
+
+
+class _Quadratic:
+    """``L(w) = offset - sum(h (w - c)**2) / 2`` with the MESC objective's ``_evaluate`` (a known maximiser)."""
+
+    def __init__(self, h, c, offset):
+        self.h, self.c, self.offset = h, c, offset
+
+    def _evaluate(self, w):
+        d = w - self.c
+        return self.offset - 0.5 * float(self.h @ d**2), -self.h * d
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_converged_means_the_tolerance_is_met_whatever_the_size_of_the_objective(seed):
+    # with |L| ~ 1e6 the relative reduction test (ftol 2.2e-9) stops L-BFGS-B while reductions are ~2e-3,
+    # far from the maximiser clip(c, 0, inf); converged must rest on the projected gradient alone
+    rng = np.random.default_rng(seed)
+    h = np.geomspace(1e-2, 1e2, 12)[rng.permutation(12)]
+    c = rng.normal(0.0, 20.0, 12)
+    fit = mesc_solvers.lbfgsb(_Quadratic(h, c, -1e6), np.zeros(12), tol=1e-4)
+    assert fit.converged and fit.n_iter > 0
+    np.testing.assert_allclose(fit.penalties, np.maximum(c, 0.0), atol=1e-4 / h.min())
+    # a tolerance at rounding level cannot be met: not converged, and the message says where it stopped
+    stuck = mesc_solvers.lbfgsb(_Quadratic(h, c, -1e6), np.zeros(12), tol=1e-12)
+    assert not stuck.converged
+    assert "> tol 1e-12 after" in stuck.message and "restart" in stuck.message
+    pg = mesc_solvers.projected_gradient_norm(stuck.penalties, stuck.gradient, None, None)
+    assert pg > 1e-12 and f"projected gradient {pg:.3g}" in stuck.message
+
+
+def test_a_selection_fit_above_its_tolerance_makes_the_result_not_converged(monkeypatch):
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 30, rng=5)
+    clean = mesc_irl(world.nominal_mdp, demos)
+    assert clean.converged and "above tol" not in clean.message
+    real = mesc_solvers.lbfgsb
+    calls = []
+
+    def first_fails(*args, **kwargs):  # the first fit of the L1 path stops above its tolerance
+        fit = real(*args, **kwargs)
+        calls.append(fit)
+        if len(calls) == 1:
+            fit = dataclasses.replace(fit, converged=False, message="stopped early")
+        return fit
+
+    monkeypatch.setattr(mesc_solvers, "lbfgsb", first_fails)
+    with pytest.warns(RuntimeWarning, match=r"1 other fit above tol \(first: stopped early\)"):
+        res = mesc_irl(world.nominal_mdp, demos)
+    assert len(calls) > 1 and not res.converged and calls[-1].converged
+    np.testing.assert_array_equal(res.penalties, clean.penalties)
 
 
 def test_held_coordinates_stay_at_zero_and_the_cap_binds():
