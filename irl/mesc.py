@@ -218,14 +218,14 @@ class MESCObjective:
         nom = self.nominal
         _, loglik = self._backward(w)
         shared, succ, pattern_of, _ = self._compact
-        sa, dst = _kernels.likelihood_adjoint(
+        src, act, dst = _kernels.likelihood_adjoint(
             nom.next_states, nom.probs, succ, pattern_of, self._patterns_ak, nom.terminal, nom.discount, shared,
             self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )
         self.n_evaluations += 1
         # d r_bar / d omega = -psi, so dL/domega = -(Lambda counts of phi)
-        return loglik * self._weight, -self.features.counts(sa.sum(axis=1), sa.sum(axis=0), dst)
+        return loglik * self._weight, -self.features.counts(src, act, dst)
 
     def feature_counts(self, penalties):
         """Expected and empirical discounted feature counts per demonstration.

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from . import _lbfgsb
+from . import _kernels, _lbfgsb
 
 MAX_RESTARTS = 3  # restarts of L-BFGS-B stopped by its own tests above the tolerance (see lbfgsb)
 _CONTROLLER: list[ThreadpoolController] = []  # one ThreadpoolController, made on first use (it scans the loaded libraries)
@@ -49,17 +49,15 @@ class Fit:
     message: str
 
 
+def _box(n, upper, free):
+    """``upper`` and ``free`` as float and bool arrays of length n (inf: no bound; all free by default)."""
+    high = np.full(n, np.inf) if upper is None else np.array(np.broadcast_to(upper, (n,)), dtype=np.float64)
+    return high, np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+
+
 def projected_gradient_norm(w, grad, upper, free):
     """Largest violation of the first-order conditions of max grad . w on the box (free coordinates)."""
-    pg = np.abs(grad)
-    at_low = w <= 0.0
-    pg[at_low] = np.maximum(grad[at_low], 0.0)
-    if upper is not None:
-        at_high = w >= upper
-        pg[at_high] = np.maximum(-grad[at_high], 0.0)
-    if free is not None:
-        pg = pg[free]
-    return float(pg.max()) if pg.size else 0.0
+    return float(_kernels.projected_gradient_max(w, grad, *_box(w.size, upper, free)))
 
 
 def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e-3, max_iter=1000, maxcor=40,
@@ -90,6 +88,10 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     scale = scale if scaled else np.ones(F)
     w0 = np.where(free, w0, 0.0) if free is not None else w0
     last = {}
+    box = _box(F, upper, free)
+
+    def violation(w, grad):
+        return _kernels.projected_gradient_max(w, grad, *box)
 
     def penalised(w, value, grad):
         if l1:
@@ -116,8 +118,7 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
 
     def callback(theta):
         if "theta" in last and np.array_equal(theta, last["theta"]):
-            if projected_gradient_norm(theta * scale if scaled else theta, last["grad"], upper, free) <= tolerance(
-                    last["loglik"]):
+            if violation(theta * scale if scaled else theta, last["grad"]) <= tolerance(last["loglik"]):
                 done["converged"] = True
                 return True
         return False
@@ -134,7 +135,7 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
     start = theta0 * scale if scaled else theta0
     value, grad = obj._evaluate(start)
     _, grad_pen = penalised(start, value, grad)
-    if projected_gradient_norm(start, grad_pen, upper, free) <= tolerance(value):
+    if violation(start, grad_pen) <= tolerance(value):
         return Fit(start, float(value), grad, 0, True, "projected gradient <= tol at the start")
     solve = _lbfgsb.minimize_box if _lbfgsb.available() else _lbfgsb.minimize_box_scipy
     theta, nit, nfev, restarts, ftol = theta0, 0, 0, 0, _lbfgsb.FTOL
@@ -147,7 +148,7 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
             w[~free] = 0.0
         value, grad = obj._evaluate(w)  # the last iterate: usually served from the objective's cache
         _, grad_pen = penalised(w, value, grad)
-        pg = projected_gradient_norm(w, grad_pen, upper, free)
+        pg = violation(w, grad_pen)
         converged = done["converged"] or pg <= tolerance(value)
         limited = nit >= max_iter or nfev > 20 * max_iter
         if converged or limited or restarts >= MAX_RESTARTS or (restarts and np.array_equal(res.x, theta)):

@@ -443,6 +443,30 @@ def test_fast_exp_matches_numpy_exp_within_two_ulp():
     assert tail[:4].tolist() == [0.0, 0.0, 0.0, 0.0] and np.isnan(tail[4])
 
 
+def test_fused_multiply_add_rounds_once():
+    # compiled: one rounding of the exact a * b + c (against exact rational arithmetic); the
+    # uncompiled fallback is that rational arithmetic itself, and differs from a * b + c where it should
+    from fractions import Fraction
+
+    from irl._kernels import _fma
+    from numba import njit
+
+    @njit
+    def apply(a, b, c):
+        out = np.empty_like(a)
+        for i in range(a.size):
+            out[i] = _fma(a[i], b[i], c[i])
+        return out
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=500) * 10.0 ** rng.integers(-5, 5, 500), rng.normal(size=500)
+    c = -a * b * (1 + rng.normal(size=500) * 1e-12)  # cancellation: the single rounding shows
+    exact = np.array([float(Fraction(x) * Fraction(y) + Fraction(z)) for x, y, z in zip(a, b, c)])
+    np.testing.assert_array_equal(apply(a, b, c), exact)
+    assert _fma(a[0], b[0], c[0]) == exact[0]
+    assert np.count_nonzero(a * b + c != exact) > 100
+
+
 @settings(deadline=None, max_examples=15)
 @given(seed=st.integers(0, 10_000), n_actions=st.integers(1, 9), n_succ=st.integers(1, 9))
 def test_shared_successor_passes_match_the_general_passes(seed, n_actions, n_succ):

@@ -125,6 +125,35 @@ def test_a_selection_fit_above_its_tolerance_makes_the_result_not_converged(monk
     np.testing.assert_array_equal(res.penalties, clean.penalties)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_projected_gradient_norm_against_its_definition(seed):
+    rng = np.random.default_rng(seed)
+    n = 40
+    w = np.where(rng.random(n) < 0.3, 0.0, rng.uniform(0, 3, n))
+    upper = np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 2.5, n))
+    w = np.minimum(w, upper)
+    w[:3] = upper[:3] = [0.0, 1.0, 2.0]  # one bound of zero width (the upper test wins), two at the bound
+    w[1:3] = upper[1:3]
+    grad = rng.normal(size=n)
+    free = rng.random(n) < 0.8
+    # the first-order conditions one coordinate at a time
+    want = 0.0
+    for f in np.flatnonzero(free):
+        if w[f] >= upper[f]:
+            v = max(-grad[f], 0.0)
+        elif w[f] <= 0.0:
+            v = max(grad[f], 0.0)
+        else:
+            v = abs(grad[f])
+        want = max(want, v)
+    assert mesc_solvers.projected_gradient_norm(w, grad, upper, free) == want
+    unbounded = [abs(g) if x > 0 else max(g, 0.0) for x, g in zip(w, grad)]
+    assert mesc_solvers.projected_gradient_norm(w, grad, None, None) == max(unbounded)
+    assert mesc_solvers.projected_gradient_norm(w, grad, None, np.zeros(n, dtype=bool)) == 0.0
+    grad[np.flatnonzero(free)[0]] = np.nan
+    assert np.isnan(mesc_solvers.projected_gradient_norm(w, grad, upper, free))
+
+
 def test_held_coordinates_stay_at_zero_and_the_cap_binds():
     world = small_world(0.1)
     demos = generate_demonstrations(world.constrained_mdp, 20, rng=2)
