@@ -415,8 +415,7 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
     the signed mass ``L_t(s, a) = c_t(s, a) + pi_t(a|s) (m_t(s) - c_t(s))`` with
     ``m_{t+1}(s') = discount * sum_{s,a} L_t(s, a) P(s'|s, a)`` and ``m_0 = 0``
     gives ``d loglik = sum_t sum_{s,a} L_t(s, a) d r_bar(s, a)``. Returns
-    ``(src, act, dst)``: the sums over actions and over states of
-    ``sum_t L_t`` (shapes (S,) and (A,)) and ``dst[s'] = sum_t sum_{s,a} L_t(s, a) P(s'|s, a)``.
+    ``sum_t L_t``, shape (S, A).
     ``shared``, ``succ`` and ``pattern_of`` as in :func:`soft_backward_into`;
     ``patterns_ak`` is its table of patterns transposed, (P, A, K), so that
     the probabilities of one action's successors lie side by side.
@@ -424,7 +423,6 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
     n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
     sa = np.zeros((n_states, n_actions))
-    dst = np.zeros(n_states)
     m = np.zeros(n_states)
     m_next = np.zeros(n_states)
     acc = np.zeros(n_succ)
@@ -467,9 +465,7 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
                         c0 = _fma(mass[a], patterns_ak[pat, a, k], c0)
                     acc[k] = c0
                 for k in range(n_succ):
-                    ns = succ[s, k]
-                    dst[ns] += acc[k]
-                    m_next[ns] += discount * acc[k]
+                    m_next[succ[s, k]] += discount * acc[k]
             else:
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
@@ -477,9 +473,7 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
                     for k in range(n_succ):
                         p = probs[s, a, k]
                         if p != 0.0:
-                            ns = next_states[s, a, k]
-                            dst[ns] += la * p
-                            m_next[ns] += discount * la * p
+                            m_next[next_states[s, a, k]] += discount * la * p
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
             s = demo_s[i]
             a = demo_a[i]
@@ -487,18 +481,39 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
             for k in range(n_succ):
                 p = probs[s, a, k]
                 if p != 0.0:
-                    ns = next_states[s, a, k]
-                    dst[ns] += weight * p
-                    m_next[ns] += discount * weight * p
+                    m_next[next_states[s, a, k]] += discount * weight * p
         for s in range(n_states):
             m[s] = m_next[s]
-    src = np.zeros(n_states)
-    act = np.zeros(n_actions)
-    for s in range(n_states):
-        for a in range(n_actions):
-            src[s] += sa[s, a]
-            act[a] += sa[s, a]
-    return src, act, dst
+    return sa
+
+
+@njit
+def affine_rewards(r0, indptr, indices, data, w, out):
+    """``out = r0 - G w`` for G in CSR form (``indptr``, ``indices``, ``data``), one row per entry of ``r0``.
+
+    ``r0`` and ``out`` are C-contiguous of any shape with ``indptr.size - 1``
+    entries; each row's product is summed in the order of its entries.
+    """
+    flat_r0 = r0.reshape(-1)
+    flat_out = out.reshape(-1)
+    for i in range(indptr.size - 1):
+        acc = 0.0
+        for j in range(indptr[i], indptr[i + 1]):
+            acc = _fma(data[j], w[indices[j]], acc)
+        flat_out[i] = flat_r0[i] - acc
+
+
+@njit
+def transposed_product(indptr, indices, data, x, n_cols):
+    """``G.T x`` for G in CSR form with ``n_cols`` columns (rows taken in order)."""
+    out = np.zeros(n_cols)
+    for i in range(indptr.size - 1):
+        xi = x[i]
+        if xi == 0.0:
+            continue
+        for j in range(indptr[i], indptr[i + 1]):
+            out[indices[j]] += data[j] * xi
+    return out
 
 
 @njit

@@ -35,9 +35,11 @@ demonstration by the model's expectation over next states.
 from __future__ import annotations
 
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
@@ -81,6 +83,49 @@ def feasible_reward_sd(mdp):
     """
     mask = (mdp.probs > 0) & ~mdp.terminal[:, None, None]
     return float(np.std(mdp.rewards[mask]))
+
+
+def _expected_features(mdp):
+    """``psi(s, a) = sum_s' P(s'|s, a) phi(s, a, s')`` as a CSR matrix of shape (S * A, F), row ``s * A + a``.
+
+    Rows of terminal states are zero (they take no action). ``r_bar = r0 - psi @ omega``
+    is the expected penalised reward, and ``-psi.T @ Lambda`` the gradient of L.
+    """
+    S, A, K = mdp.probs.shape
+    feats = mdp.features
+    rows = np.arange(S * A)
+    live = np.repeat(~mdp.terminal, A).astype(np.float64)
+    moves = sp.csr_array((mdp.probs.reshape(-1), (np.repeat(rows, K), mdp.next_states.reshape(-1))), shape=(S * A, S))
+    ones = np.ones(S * A)
+    psi = (moves @ feats.destination
+           + sp.csr_array((ones, (rows, rows // A)), shape=(S * A, S)) @ feats.source
+           + sp.csr_array((ones, (rows, rows % A)), shape=(S * A, A)) @ feats.action)
+    psi = sp.csr_array(sp.diags_array(live) @ psi, dtype=np.float64)
+    psi.eliminate_zeros()
+    psi.sum_duplicates()
+    psi.sort_indices()
+    return psi
+
+
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # MDP -> its tables for the passes
+
+
+def _pass_tables(mdp):
+    """``(r0, psi's CSR arrays, successor_patterns)`` of an MDP, made once per MDP object (its arrays are read-only).
+
+    ``r_bar = r0 - psi @ omega`` is the expected penalised reward of every (s, a).
+    """
+    hit = _TABLES.get(mdp)
+    if hit is None:
+        S, A = mdp.n_states, mdp.n_actions
+        zeros = np.zeros(S)
+        r0 = _kernels.penalised_expected_rewards(mdp.next_states, mdp.probs, mdp.rewards, mdp.terminal, zeros,
+                                                 np.zeros(A), zeros)
+        psi = _expected_features(mdp)
+        hit = (r0, (psi.indptr.astype(np.int64), psi.indices.astype(np.int64), psi.data),
+               successor_patterns(mdp.next_states, mdp.probs))
+        _TABLES[mdp] = hit
+    return hit
 
 
 PASS_BLOCK = 128  # states per block of the backward pass (its soft maximum runs over a block at a time)
@@ -151,13 +196,16 @@ class MESCObjective:
         self.start = np.bincount(demonstrations.start_states, minlength=S).astype(np.float64) / n
         self._policy = np.empty((H, S, A))
         self._scratch = np.empty((1, S, A))  # policy rows of a likelihood-only backward pass
-        self._compact = successor_patterns(nominal.next_states, nominal.probs)  # shared, succ, pattern_of, patterns
+        self._compact = _pass_tables(nominal)[2]  # shared, succ, pattern_of, patterns
         self._patterns_ak = np.ascontiguousarray(self._compact[3].transpose(0, 2, 1))  # the adjoint's layout
         # the passes skip blocks of states that no demonstrated state can reach by then (exact for L and its
         # gradient); a full pass (the policy handed out) computes every block at every step
         self._block_first = _kernels.first_needed_steps(
             nominal.next_states, nominal.probs, nominal.terminal, self._demo_ptr, self._demo_s, PASS_BLOCK)
         self._block_all = np.zeros_like(self._block_first)
+        # r_bar = r0 - psi omega; the gradient is -psi.T Lambda (psi: expected features of each (s, a))
+        self._r0, self._psi, _ = _pass_tables(nominal)
+        self._r_bar = np.empty((S, A))
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
 
@@ -168,10 +216,8 @@ class MESCObjective:
 
     def _backward(self, w, policy=None, full=False):
         nom = self.nominal
-        u_src, u_act, u_dst = self.features._projections(w)
-        r_bar = _kernels.penalised_expected_rewards(
-            nom.next_states, nom.probs, nom.rewards, nom.terminal, u_src, u_act, u_dst
-        )
+        r_bar = self._r_bar
+        _kernels.affine_rewards(self._r0, *self._psi, w, r_bar)
         shared, succ, pattern_of, patterns = self._compact
         return _kernels.soft_backward_into(
             nom.next_states, nom.probs, succ, pattern_of, patterns, r_bar, nom.terminal, nom.discount, shared,
@@ -218,14 +264,16 @@ class MESCObjective:
         nom = self.nominal
         _, loglik = self._backward(w)
         shared, succ, pattern_of, _ = self._compact
-        src, act, dst = _kernels.likelihood_adjoint(
+        sa = _kernels.likelihood_adjoint(
             nom.next_states, nom.probs, succ, pattern_of, self._patterns_ak, nom.terminal, nom.discount, shared,
             self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )
         self.n_evaluations += 1
-        # d r_bar / d omega = -psi, so dL/domega = -(Lambda counts of phi)
-        return loglik * self._weight, -self.features.counts(src, act, dst)
+        # d r_bar / d omega = -psi, so dL/domega = -psi.T Lambda
+        grad = _kernels.transposed_product(*self._psi, sa.reshape(-1), self.n_features)
+        np.negative(grad, out=grad)
+        return loglik * self._weight, grad
 
     def feature_counts(self, penalties):
         """Expected and empirical discounted feature counts per demonstration.
