@@ -443,6 +443,39 @@ def test_fast_exp_matches_numpy_exp_within_two_ulp():
     assert tail[:4].tolist() == [0.0, 0.0, 0.0, 0.0] and np.isnan(tail[4])
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_expected_features_per_state_action_against_brute_force(seed):
+    # psi(s, a) = sum_k P(s_k | s, a) phi(s, a, s_k) from TransitionFeatures.phi, zero at terminal states;
+    # r0 - psi . omega is the expected penalised reward of the kernel that sums per transition
+    from irl import _kernels
+    from irl.mesc import _expected_features, _pass_tables
+
+    rng = np.random.default_rng(seed)
+    S, A, F = 9, 3, 5
+    P = rng.random((S, A, S)) * (rng.random((S, A, S)) < 0.4)
+    P[:, :, S - 1] += 0.05
+    P /= P.sum(axis=2, keepdims=True)
+    feats = TransitionFeatures(rng.random((S, F)) * (rng.random((S, F)) < 0.5), rng.random((A, F)),
+                               rng.random((S, F)) * (rng.random((S, F)) < 0.5))
+    term = np.zeros(S, dtype=bool)
+    term[S - 1] = True
+    mdp = MDP.from_dense(P, rng.normal(size=(S, A, S)), terminal=term, start=np.eye(S)[0], features=feats)
+    want = np.zeros((S * A, F))
+    for s in range(S - 1):
+        for a in range(A):
+            for k in range(mdp.n_successors):
+                want[s * A + a] += mdp.probs[s, a, k] * feats.phi(s, a, mdp.next_states[s, a, k])
+    np.testing.assert_allclose(_expected_features(mdp).toarray(), want, rtol=1e-12, atol=1e-15)
+    w = rng.uniform(0, 3, F)
+    r0, psi, _ = _pass_tables(mdp)
+    got = np.empty((S, A))
+    _kernels.affine_rewards(r0, *psi, w, got)
+    ref = _kernels.penalised_expected_rewards(mdp.next_states, mdp.probs, mdp.rewards, mdp.terminal,
+                                              *feats.projections(w))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+    assert _pass_tables(mdp)[1] is psi  # made once per MDP
+
+
 def test_fused_multiply_add_rounds_once():
     # compiled: one rounding of the exact a * b + c (against exact rational arithmetic); the
     # uncompiled fallback is that rational arithmetic itself, and differs from a * b + c where it should
