@@ -287,8 +287,8 @@ def soft_value_iteration_finite(next_states, probs, r_bar, terminal, discount, h
 
 
 @njit
-def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, terminal, discount, shared, policy,
-                       demo_ptr, demo_s, demo_a, block, block_first):
+def soft_backward_into(next_states, probs, succ, pattern_of, patterns, split, r_bar, terminal, discount, shared,
+                       policy, demo_ptr, demo_s, demo_a, block, block_first):
     """Finite-horizon soft recursion writing the time-indexed policy into ``policy`` (H, S, A).
 
     ``shared[s]`` says that every action of s lists the same successors in the same
@@ -297,7 +297,10 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
     successor k side by side from ``patterns[pattern_of[s], k]`` (a table of the
     distinct (K, A) probability matrices, :func:`irl.mdp.successor_patterns`): a
     gridworld with slip has nine, so the pass reads a few bytes per state instead
-    of ``probs``. Other states read ``next_states`` and ``probs``.
+    of ``probs``. Other states read ``next_states`` and ``probs``. ``split`` is
+    :func:`split_patterns` of the table: a pattern whose actions differ from its
+    common part in one successor each (a gridworld's slip) costs K + A
+    multiply-adds per state instead of K A.
     States are processed in blocks of ``block``; block b is computed at steps
     ``t >= block_first[b]`` only (its rows of ``policy`` and its values are left
     as they are before), which is exact for every quantity at (t, s) with
@@ -315,6 +318,8 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
     v_next = np.zeros(n_states)
     v = np.zeros(n_states)
     q = np.zeros((n_states, n_actions))
+    g = np.zeros(n_succ)
+    base, res_k, res_p, simple = split
     a4 = n_actions - n_actions % 4
     loglik = 0.0
     for t in range(horizon - 1, -1, -1):
@@ -329,11 +334,20 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, r_bar, te
                     for a in range(n_actions):
                         q[s, a] = 0.0
                     continue
-                if shared[s]:
-                    # (the sums over successors here and below are fused multiply-adds, one rounding each)
+                pat = pattern_of[s]
+                if shared[s] and simple[pat]:
+                    # (the sums over successors are fused multiply-adds, one rounding each) the common part
+                    # once, then each action's one successor of its own
+                    common = 0.0
+                    for k in range(n_succ):
+                        vk = v_next[succ[s, k]]
+                        g[k] = vk
+                        common = _fma(base[pat, k], vk, common)
+                    for a in range(n_actions):
+                        q[s, a] = _fma(discount, _fma(res_p[pat, a], g[res_k[pat, a]], common), r_bar[s, a])
+                elif shared[s]:
                     # summed over k in order for each action; four actions at a time in registers (the
                     # compiler packs them into one vector), then the rest one by one
-                    pat = pattern_of[s]
                     for a in range(0, a4, 4):
                         c0 = 0.0
                         c1 = 0.0
@@ -407,8 +421,8 @@ def first_needed_steps(next_states, probs, terminal, demo_ptr, demo_s, block):
 
 
 @njit
-def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, terminal, discount, shared, policy, demo_ptr,
-                       demo_s, demo_a, weight):
+def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, split, terminal, discount, shared, policy,
+                       demo_ptr, demo_s, demo_a, weight):
     """Adjoint (forward) pass of the demonstrations' log-likelihood.
 
     With c_t(s, a) the weighted count of demonstration transitions at step t,
@@ -418,7 +432,8 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
     ``sum_t L_t``, shape (S, A).
     ``shared``, ``succ`` and ``pattern_of`` as in :func:`soft_backward_into`;
     ``patterns_ak`` is its table of patterns transposed, (P, A, K), so that
-    the probabilities of one action's successors lie side by side.
+    the probabilities of one action's successors lie side by side, and ``split``
+    is as there.
     """
     n_states, n_actions, n_succ = probs.shape
     horizon = policy.shape[0]
@@ -427,6 +442,7 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
     m_next = np.zeros(n_states)
     acc = np.zeros(n_succ)
     mass = np.zeros(n_actions)
+    base, res_k, res_p, simple = split
     k4 = n_succ - n_succ % 4
     for t in range(horizon):
         for i in range(demo_ptr[t], demo_ptr[t + 1]):
@@ -437,9 +453,24 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
             ms = m[s]
             if ms == 0.0 or terminal[s]:
                 continue
-            if shared[s]:
+            pat = pattern_of[s]
+            if shared[s] and simple[pat]:
+                # the common part times the total mass, then each action's one successor of its own
+                total = 0.0
+                for a in range(n_actions):
+                    la = ms * policy[t, s, a]
+                    mass[a] = la
+                    sa[s, a] += la
+                    total += la
+                for k in range(n_succ):
+                    acc[k] = base[pat, k] * total
+                for a in range(n_actions):
+                    k = res_k[pat, a]
+                    acc[k] = _fma(mass[a], res_p[pat, a], acc[k])
+                for k in range(n_succ):
+                    m_next[succ[s, k]] += discount * acc[k]
+            elif shared[s]:
                 # acc[k] summed over a in order; four successors at a time in registers, then the rest
-                pat = pattern_of[s]
                 for a in range(n_actions):
                     la = ms * policy[t, s, a]
                     mass[a] = la
@@ -485,6 +516,25 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, termin
         for s in range(n_states):
             m[s] = m_next[s]
     return sa
+
+
+def split_patterns(patterns):
+    """Each transition pattern as a common part plus at most one successor of its own per action.
+
+    ``patterns`` is the (P, K, A) table of :func:`irl.mdp.successor_patterns`.
+    Returns ``(base, res_k, res_p, simple)``: ``base[p, k]`` the smallest
+    probability of successor k over the actions, and for a ``simple`` pattern
+    (every action's probabilities exceed ``base`` at one successor at most)
+    ``P[p, k, a] = base[p, k] + res_p[p, a] [k == res_k[p, a]]`` up to rounding;
+    other patterns keep their full matrix (``simple`` False).
+    """
+    n_pat, n_succ, n_actions = patterns.shape
+    base = patterns.min(axis=2)
+    excess = patterns - base[:, :, None]
+    simple = (np.count_nonzero(excess > 0.0, axis=1) <= 1).all(axis=1)
+    res_k = excess.argmax(axis=1).astype(np.int64)
+    res_p = np.take_along_axis(excess, res_k[:, None, :], axis=1)[:, 0, :]
+    return np.ascontiguousarray(base), res_k, np.ascontiguousarray(res_p), simple
 
 
 @njit

@@ -111,7 +111,9 @@ _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # MDP -> its t
 
 
 def _pass_tables(mdp):
-    """``(r0, psi's CSR arrays, successor_patterns)`` of an MDP, made once per MDP object (its arrays are read-only).
+    """``(r0, psi's CSR arrays, successor_patterns, split_patterns)`` of an MDP, made once per MDP object.
+
+    (Its arrays are read-only.)
 
     ``r_bar = r0 - psi @ omega`` is the expected penalised reward of every (s, a).
     """
@@ -122,8 +124,9 @@ def _pass_tables(mdp):
         r0 = _kernels.penalised_expected_rewards(mdp.next_states, mdp.probs, mdp.rewards, mdp.terminal, zeros,
                                                  np.zeros(A), zeros)
         psi = _expected_features(mdp)
-        hit = (r0, (psi.indptr.astype(np.int64), psi.indices.astype(np.int64), psi.data),
-               successor_patterns(mdp.next_states, mdp.probs))
+        compact = successor_patterns(mdp.next_states, mdp.probs)
+        hit = (r0, (psi.indptr.astype(np.int64), psi.indices.astype(np.int64), psi.data), compact,
+               _kernels.split_patterns(compact[3]))
         _TABLES[mdp] = hit
     return hit
 
@@ -204,7 +207,7 @@ class MESCObjective:
             nominal.next_states, nominal.probs, nominal.terminal, self._demo_ptr, self._demo_s, PASS_BLOCK)
         self._block_all = np.zeros_like(self._block_first)
         # r_bar = r0 - psi omega; the gradient is -psi.T Lambda (psi: expected features of each (s, a))
-        self._r0, self._psi, _ = _pass_tables(nominal)
+        self._r0, self._psi, _, self._split = _pass_tables(nominal)
         self._r_bar = np.empty((S, A))
         self.n_evaluations = 0
         self._recent = {}  # exact bytes of omega -> (L, dL/domega) of the last few evaluations
@@ -220,7 +223,8 @@ class MESCObjective:
         _kernels.affine_rewards(self._r0, *self._psi, w, r_bar)
         shared, succ, pattern_of, patterns = self._compact
         return _kernels.soft_backward_into(
-            nom.next_states, nom.probs, succ, pattern_of, patterns, r_bar, nom.terminal, nom.discount, shared,
+            nom.next_states, nom.probs, succ, pattern_of, patterns, self._split, r_bar, nom.terminal, nom.discount,
+            shared,
             self._policy if policy is None else policy, self._demo_ptr, self._demo_s, self._demo_a, PASS_BLOCK,
             self._block_all if full else self._block_first,
         )
@@ -265,7 +269,8 @@ class MESCObjective:
         _, loglik = self._backward(w)
         shared, succ, pattern_of, _ = self._compact
         sa = _kernels.likelihood_adjoint(
-            nom.next_states, nom.probs, succ, pattern_of, self._patterns_ak, nom.terminal, nom.discount, shared,
+            nom.next_states, nom.probs, succ, pattern_of, self._patterns_ak, self._split, nom.terminal, nom.discount,
+            shared,
             self._policy,
             self._demo_ptr, self._demo_s, self._demo_a, self._weight,
         )

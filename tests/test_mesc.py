@@ -467,13 +467,46 @@ def test_expected_features_per_state_action_against_brute_force(seed):
                 want[s * A + a] += mdp.probs[s, a, k] * feats.phi(s, a, mdp.next_states[s, a, k])
     np.testing.assert_allclose(_expected_features(mdp).toarray(), want, rtol=1e-12, atol=1e-15)
     w = rng.uniform(0, 3, F)
-    r0, psi, _ = _pass_tables(mdp)
+    r0, psi = _pass_tables(mdp)[:2]
     got = np.empty((S, A))
     _kernels.affine_rewards(r0, *psi, w, got)
     ref = _kernels.penalised_expected_rewards(mdp.next_states, mdp.probs, mdp.rewards, mdp.terminal,
                                               *feats.projections(w))
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
     assert _pass_tables(mdp)[1] is psi  # made once per MDP
+
+
+@pytest.mark.parametrize("size, p_slip, seed", [(4, 0.1, 0), (6, 0.3, 1), (9, 0.1, 2), (5, 0.05, 3)])
+def test_split_patterns_passes_match_the_general_passes(size, p_slip, seed):
+    # with slip every pattern is a common part plus one successor of its own per action: those passes
+    # (K + A multiply-adds per state) give L, its gradient and the policy of the passes reading probs
+    from irl import _kernels
+
+    world = GridWorld.random(size, rng=seed, n_blue=2, n_green=2, n_constrained_states=2, n_constrained_actions=1,
+                             min_distance=size / 2, p_slip=p_slip)
+    demos = generate_demonstrations(world.constrained_mdp, 20, rng=seed)
+    obj = MESCObjective(world.nominal_mdp, demos)
+    base, res_k, res_p, simple = obj._split
+    assert simple.all()
+    patterns = obj._compact[3]
+    rebuilt = np.repeat(base[:, :, None], patterns.shape[2], axis=2)
+    np.put_along_axis(rebuilt, res_k[:, None, :], rebuilt[np.arange(len(base))[:, None], res_k, np.arange(8)][:, None, :]
+                      + res_p[:, None, :], axis=1)
+    np.testing.assert_allclose(rebuilt, patterns, rtol=1e-15, atol=0)  # up to the rounding of the split
+    general = MESCObjective(world.nominal_mdp, demos)
+    shared, succ, pattern_of, pats = general._compact
+    general._compact = (np.zeros_like(shared), succ, pattern_of, pats)
+    w = np.random.default_rng(seed).uniform(0.0, 5.0, world.n_features)
+    value, grad = obj(w)
+    ref_value, ref_grad = general(w)
+    assert value == pytest.approx(ref_value, rel=1e-13)
+    np.testing.assert_allclose(grad, ref_grad, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(obj.policy(w), general.policy(w), rtol=0, atol=1e-13)
+    assert obj._value(w * 0.5) == pytest.approx(general._value(w * 0.5), rel=1e-13)
+    # a pattern with two successors of its own for some action is not split
+    two = patterns[:1].copy()
+    two[0, :2, 0] += [0.2, 0.1]
+    assert not _kernels.split_patterns(two)[3][0]
 
 
 def test_fused_multiply_add_rounds_once():
