@@ -298,7 +298,7 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, split, r_
     distinct (K, A) probability matrices, :func:`irl.mdp.successor_patterns`): a
     gridworld with slip has nine, so the pass reads a few bytes per state instead
     of ``probs``. Other states read ``next_states`` and ``probs``. ``split`` is
-    :func:`split_patterns` of the table: a pattern whose actions differ from its
+    :func:`irl.mesc._split_patterns` of the table: a pattern whose actions differ from its
     common part in one successor each (a gridworld's slip) costs K + A
     multiply-adds per state instead of K A.
     States are processed in blocks of ``block``; block b is computed at steps
@@ -516,25 +516,6 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, split,
         for s in range(n_states):
             m[s] = m_next[s]
     return sa
-
-
-def split_patterns(patterns):
-    """Each transition pattern as a common part plus at most one successor of its own per action.
-
-    ``patterns`` is the (P, K, A) table of :func:`irl.mdp.successor_patterns`.
-    Returns ``(base, res_k, res_p, simple)``: ``base[p, k]`` the smallest
-    probability of successor k over the actions, and for a ``simple`` pattern
-    (every action's probabilities exceed ``base`` at one successor at most)
-    ``P[p, k, a] = base[p, k] + res_p[p, a] [k == res_k[p, a]]`` up to rounding;
-    other patterns keep their full matrix (``simple`` False).
-    """
-    n_pat, n_succ, n_actions = patterns.shape
-    base = patterns.min(axis=2)
-    excess = patterns - base[:, :, None]
-    simple = (np.count_nonzero(excess > 0.0, axis=1) <= 1).all(axis=1)
-    res_k = excess.argmax(axis=1).astype(np.int64)
-    res_p = np.take_along_axis(excess, res_k[:, None, :], axis=1)[:, 0, :]
-    return np.ascontiguousarray(base), res_k, np.ascontiguousarray(res_p), simple
 
 
 @njit

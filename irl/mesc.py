@@ -107,11 +107,29 @@ def _expected_features(mdp):
     return psi
 
 
+def _split_patterns(patterns):
+    """Each transition pattern as a common part plus at most one successor of its own per action.
+
+    ``patterns`` is the (P, K, A) table of :func:`irl.mdp.successor_patterns`.
+    Returns ``(base, res_k, res_p, simple)``: ``base[p, k]`` the smallest
+    probability of successor k over the actions, and for a ``simple`` pattern
+    (every action's probabilities exceed ``base`` at one successor at most)
+    ``P[p, k, a] = base[p, k] + res_p[p, a] [k == res_k[p, a]]`` up to rounding;
+    other patterns keep their full matrix (``simple`` False).
+    """
+    base = patterns.min(axis=2)
+    excess = patterns - base[:, :, None]
+    simple = (np.count_nonzero(excess > 0.0, axis=1) <= 1).all(axis=1)
+    res_k = excess.argmax(axis=1).astype(np.int64)
+    res_p = np.take_along_axis(excess, res_k[:, None, :], axis=1)[:, 0, :]
+    return np.ascontiguousarray(base), res_k, np.ascontiguousarray(res_p), simple
+
+
 _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # MDP -> its tables for the passes
 
 
 def _pass_tables(mdp):
-    """``(r0, psi's CSR arrays, successor_patterns, split_patterns)`` of an MDP, made once per MDP object.
+    """``(r0, psi's CSR arrays, successor_patterns, _split_patterns)`` of an MDP, made once per MDP object.
 
     (Its arrays are read-only.)
 
@@ -126,7 +144,7 @@ def _pass_tables(mdp):
         psi = _expected_features(mdp)
         compact = successor_patterns(mdp.next_states, mdp.probs)
         hit = (r0, (psi.indptr.astype(np.int64), psi.indices.astype(np.int64), psi.data), compact,
-               _kernels.split_patterns(compact[3]))
+               _split_patterns(compact[3]))
         _TABLES[mdp] = hit
     return hit
 

@@ -480,7 +480,7 @@ def test_expected_features_per_state_action_against_brute_force(seed):
 def test_split_patterns_passes_match_the_general_passes(size, p_slip, seed):
     # with slip every pattern is a common part plus one successor of its own per action: those passes
     # (K + A multiply-adds per state) give L, its gradient and the policy of the passes reading probs
-    from irl import _kernels
+    from irl.mesc import _split_patterns
 
     world = GridWorld.random(size, rng=seed, n_blue=2, n_green=2, n_constrained_states=2, n_constrained_actions=1,
                              min_distance=size / 2, p_slip=p_slip)
@@ -506,7 +506,7 @@ def test_split_patterns_passes_match_the_general_passes(size, p_slip, seed):
     # a pattern with two successors of its own for some action is not split
     two = patterns[:1].copy()
     two[0, :2, 0] += [0.2, 0.1]
-    assert not _kernels.split_patterns(two)[3][0]
+    assert not _split_patterns(two)[3][0]
 
 
 def test_fused_multiply_add_rounds_once():
@@ -538,7 +538,8 @@ def test_fused_multiply_add_rounds_once():
 def test_shared_successor_passes_match_the_general_passes(seed, n_actions, n_succ):
     # every state lists the same successors for all its actions (the pattern-table passes, which
     # work on four actions or successors at a time plus a remainder); they must give the policy of
-    # the plain recursion, and L (bit for bit) and its gradient of the passes reading probs directly
+    # the plain recursion, and L (bit for bit, unless a pattern in use is split into a common part
+    # and one successor per action: then to rounding) and its gradient of the passes reading probs
     rng = np.random.default_rng(seed)
     S, F = 7, 4
     P = np.zeros((S, n_actions, S))
@@ -562,7 +563,9 @@ def test_shared_successor_passes_match_the_general_passes(seed, n_actions, n_suc
     w = rng.uniform(0.0, 2.0, F)
     value, grad = obj(w)
     ref_value, ref_grad = general(w)
-    assert value == ref_value
+    split = obj._split[3][np.unique(pattern_of[~mdp.terminal])].any()
+    same = (lambda x, y: x == pytest.approx(y, rel=1e-13, abs=1e-13)) if split else (lambda x, y: x == y)
+    assert same(value, ref_value)
     np.testing.assert_allclose(grad, ref_grad, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(obj.policy(w), soft_value_iteration(mdp.penalised(w), horizon=7).policy, atol=1e-12)
-    assert obj._value(w + 0.25) == general._value(w + 0.25)
+    assert same(obj._value(w + 0.25), general._value(w + 0.25))
