@@ -61,15 +61,19 @@ def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
     of them is below 1e-15.
     """
     total = 0.0
-    tails = np.empty(3)
+    tail0 = upper(muP[0], sd_opt[0], theta)
+    tail1 = upper(muP[1], sd_opt[1], theta)
+    tail2 = upper(muP[2], sd_opt[2], theta)
     for i in range(3):
-        tails[i] = upper(muP[i], sd_opt[i], theta)
-    for i in range(3):
-        pi = tails[i]
+        pi = tail0 if i == 0 else (tail1 if i == 1 else tail2)
         if pi <= 0.0:
             continue
+        tail_i = pi
         for k in range(3):
-            if k == i or min(tails[i], tails[k]) < 1e-15:
+            if k == i:
+                continue
+            tail_k = tail0 if k == 0 else (tail1 if k == 1 else tail2)
+            if min(tail_i, tail_k) < 1e-15:
                 continue
             pi -= joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i], pair_sd[i, k], 0.0,
                               pair_rho[i, k], gl_x, gl_w)
@@ -148,8 +152,20 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     (:func:`_breaks`), so that each piece is smooth, and each piece is
     integrated by composite six-point Gauss-Legendre on panels no wider than
     ``sx``. A component much narrower than the cell along ``x`` is taken as a
-    point there.
+    point there. :func:`cut_mass_with` is the same with the caller's buffers.
     """
+    cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
+    cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
+    ends = np.empty(3 * ex.shape[0] + 2)
+    return cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi,
+                         ends)
+
+
+@njit
+def cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi, ends):
+    """:func:`cut_mass` given the normal CDFs ``cdf_lo = Phi((ylo - my) / sy)`` and
+    ``cdf_hi = Phi((yhi - my) / sy)`` of the cell's own edges (used when ``sy > 0``)
+    and a work array ``ends`` of at least ``3 len(ex) + 2`` entries."""
     width = xhi - xlo
     if sx <= width / 64.0:
         if not (xlo <= mx and mx < xhi):
@@ -160,14 +176,10 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     hi = min(xhi, mx + _WIDTH * sx)
     if hi <= lo:
         return 0.0
-    ends = np.empty(3 * ex.shape[0] + 2)
     ends[0] = lo
     n_ends = 1 + _breaks(lo, hi, ylo, yhi, ex, ey, bound, ends[1:])
     ends[n_ends] = hi
     norm = 1.0 / (sx * math.sqrt(2.0 * math.pi))
-    # the cell's own edges recur at most nodes: their normal CDFs are taken once
-    cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
-    cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
     total = 0.0
     for piece in range(n_ends):
         p0 = ends[piece]

@@ -19,7 +19,8 @@ import numpy as np
 
 from ._numba import njit
 from ._plane_tail import WINDOW, check, fill, snapshot
-from ._plane import absorb3, classify, cut_mass, centroid, interval_mass, _CUT, _WIDTH
+from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
+                     _CUT)
 
 # A step whose staying mass finds no cell (every candidate below the kernel cut) may count
 # it as chosen when it is below this; otherwise the resolution is refused.
@@ -27,20 +28,24 @@ _NEGLIGIBLE = 1e-7
 OK = 0
 TOO_MANY_STATES = 1
 LOST_MASS = 2
+# A target window reaches this many standard deviations of its component either way: a cell
+# beyond gets at most the normal tail there (6e-9), below _CUT, and would be left out anyway.
+_REACH = 5.7
 # Propagation leaves out states holding less than this share of the undecided mass.
 _SKIP = 1e-15
 
 
 @njit
 def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2, h1, h2,
-         n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, scratch, tmp, p1, p2, absorbed, box):
+         n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, ex, ey, reach, scratch, tmp, p1, p2,
+         f1lo, f1hi, f2lo, f2hi, part, muP, ends, absorbed, box):
     """One source at ``(z, s)``: choices into ``absorbed``, staying mass added to ``scratch``
-    (its bounding box in ``box``); returns ``(s_next, lost)``."""
+    (its bounding box in ``box``); returns ``(s_next, lost)``.
+
+    ``ex``, ``ey`` are the columns of ``E`` and ``reach[i]`` the half-extent of a cell
+    along line ``i`` (:func:`mdft._plane.classify`); ``tmp`` is zero on entry and on
+    return; the other arrays are work space."""
     J = w.shape[0]
-    part = np.zeros(3)
-    muP = np.empty(3)
-    ex = E[:, 0].copy()
-    ey = E[:, 1].copy()
     P0 = E[0, 0] * z1 + E[0, 1] * z2 + s / 3.0
     P1 = E[1, 0] * z1 + E[1, 1] * z2 + s / 3.0
     P2 = E[2, 0] * z1 + E[2, 1] * z2 + s / 3.0
@@ -69,9 +74,10 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
                 absorbed[i] += w[j] * part[i] / p_abs
             continue
         inside = 0.0
-        lo1 = 0
+        # the cells written to tmp (an empty range: none)
+        lo1 = n1
         hi1 = -1
-        lo2 = 0
+        lo2 = n2
         hi2 = -1
         for attempt in range(2):
             if attempt == 0:
@@ -83,39 +89,59 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
                 for a in range(lo1, hi1 + 1):
                     for b in range(lo2, hi2 + 1):
                         tmp[a, b] = 0.0
+                lo1 = n1
+                hi1 = -1
+                lo2 = n2
+                hi2 = -1
                 mu1 = zm1 + exact[0, j]
                 mu2 = zm2 + exact[1, j]
                 sd1 = sd_exact[0]
                 sd2 = sd_exact[1]
-            lo1 = max(int(math.floor((mu1 - _WIDTH * sd1 - o1) / h1 + 0.5)), 0)
-            hi1 = min(int(math.floor((mu1 + _WIDTH * sd1 - o1) / h1 + 0.5)), n1 - 1)
-            lo2 = max(int(math.floor((mu2 - _WIDTH * sd2 - o2) / h2 + 0.5)), 0)
-            hi2 = min(int(math.floor((mu2 + _WIDTH * sd2 - o2) / h2 + 0.5)), n2 - 1)
+            # the window: cells within _REACH standard deviations of the mean (the cells
+            # beyond get less than _CUT)
+            w_lo1 = max(int(math.floor((mu1 - _REACH * sd1 - o1) / h1 + 0.5)), 0)
+            w_hi1 = min(int(math.floor((mu1 + _REACH * sd1 - o1) / h1 + 0.5)), n1 - 1)
+            w_lo2 = max(int(math.floor((mu2 - _REACH * sd2 - o2) / h2 + 0.5)), 0)
+            w_hi2 = min(int(math.floor((mu2 + _REACH * sd2 - o2) / h2 + 0.5)), n2 - 1)
             inside = 0.0
-            for a in range(lo1, hi1 + 1):
+            _margins(w_lo1, w_hi1, o1, h1, mu1, sd1, p1, f1lo, f1hi)
+            p2max = _margins(w_lo2, w_hi2, o2, h2, mu2, sd2, p2, f2lo, f2hi)
+            for a in range(w_lo1, w_hi1 + 1):
+                pa = p1[a]
+                if pa * p2max < _CUT:
+                    continue  # every cell of the column gets less than the cut
                 c1 = o1 + a * h1
-                p1[a] = interval_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, mu1, sd1)
-            for b in range(lo2, hi2 + 1):
-                c2 = o2 + b * h2
-                p2[b] = interval_mass(c2 - 0.5 * h2, c2 + 0.5 * h2, mu2, sd2)
-            for a in range(lo1, hi1 + 1):
-                c1 = o1 + a * h1
-                for b in range(lo2, hi2 + 1):
-                    tmp[a, b] = 0.0
-                    v = p1[a] * p2[b]
+                e0 = ex[0] * c1
+                e1 = ex[1] * c1
+                e2 = ex[2] * c1
+                for b in range(w_lo2, w_hi2 + 1):
+                    v = pa * p2[b]
                     if v < _CUT:
                         continue
                     c2 = o2 + b * h2
-                    kind = classify(c1, c2, h1, h2, E, bound)
-                    if kind == 2:
+                    # where the cell lies (mdft._plane.classify): outside, across, inside
+                    t0 = e0 + ey[0] * c2
+                    t1 = e1 + ey[1] * c2
+                    t2 = e2 + ey[2] * c2
+                    if (t0 - reach[0] >= bound or t1 - reach[1] >= bound
+                            or t2 - reach[2] >= bound):
                         continue
-                    if kind == 1:
-                        v = cut_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
-                                     c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound)
+                    if (t0 + reach[0] >= bound or t1 + reach[1] >= bound
+                            or t2 + reach[2] >= bound):
+                        v = cut_mass_with(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
+                                          c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound,
+                                          f2lo[b], f2hi[b], ends)
                         if v < _CUT:
                             continue
                     tmp[a, b] = v
                     inside += v
+                    if a < lo1:
+                        lo1 = a
+                    hi1 = a
+                    if b < lo2:
+                        lo2 = b
+                    if b > hi2:
+                        hi2 = b
             if inside >= 0.5 * stay:
                 break
         if inside <= 0.0:
@@ -138,6 +164,40 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
         for i in range(3):
             absorbed[i] += w[j] * part[i]
     return s_next, lost
+
+
+@njit
+def _margins(lo, hi, o, h, mu, sd, p, cdf_lo, cdf_hi):
+    """``p[a] = interval_mass(c - h / 2, c + h / 2, mu, sd)`` for the cells ``a`` in
+    ``[lo, hi]`` (centre ``c = o + a h``), with the normal CDFs at their lower and upper
+    edges in ``cdf_lo`` and ``cdf_hi`` when ``sd > 0`` (an edge shared with the previous
+    cell is evaluated once); returns the largest ``p``."""
+    top = 0.0
+    if sd > 0.0:
+        prev_edge = 0.0
+        prev_cdf = 0.0
+        for a in range(lo, hi + 1):
+            c = o + a * h
+            e_lo = c - 0.5 * h
+            e_hi = c + 0.5 * h
+            f_lo = prev_cdf if (a > lo and e_lo == prev_edge) else phi_cdf((e_lo - mu) / sd)
+            f_hi = phi_cdf((e_hi - mu) / sd)
+            v = f_hi - f_lo if e_lo < e_hi else 0.0
+            cdf_lo[a] = f_lo
+            cdf_hi[a] = f_hi
+            p[a] = v
+            prev_edge = e_hi
+            prev_cdf = f_hi
+            if v > top:
+                top = v
+    else:
+        for a in range(lo, hi + 1):
+            c = o + a * h
+            v = interval_mass(c - 0.5 * h, c + 0.5 * h, mu, sd)
+            p[a] = v
+            if v > top:
+                top = v
+    return top
 
 
 @njit
@@ -188,6 +248,19 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     p2 = np.zeros(n2)
     aA = np.zeros(3)
     aB = np.zeros(3)
+    # work space of _row, allocated once
+    f1lo = np.zeros(n1)
+    f1hi = np.zeros(n1)
+    f2lo = np.zeros(n2)
+    f2hi = np.zeros(n2)
+    part = np.zeros(3)
+    muP = np.zeros(3)
+    ends = np.zeros(3 * 3 + 2)
+    ex = E[:, 0].copy()
+    ey = E[:, 1].copy()
+    reach = np.zeros(3)
+    for i in range(3):
+        reach[i] = 0.5 * (abs(E[i, 0]) * h1 + abs(E[i, 1]) * h2)
     box = np.zeros(4, dtype=np.int64)
     start_cols = np.empty(0, dtype=np.int64)
     start_vals = np.empty(0)
@@ -212,11 +285,13 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         box[3] = -1
         snA, lostA = _row(z1, z2, s_mid - d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact,
                           theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w,
-                          sA, tmp, p1, p2, aA, box)
+                          ex, ey, reach, sA, tmp, p1, p2, f1lo, f1hi, f2lo, f2hi, part, muP,
+                          ends, aA, box)
         if d > 0.0:
             snB, lostB = _row(z1, z2, s_mid + d, S, E, CM, w, shrunk, sd_cell, exact,
                               sd_exact, theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd,
-                              pair_rho, gl_x, gl_w, sB, tmp, p1, p2, aB, box)
+                              pair_rho, gl_x, gl_w, ex, ey, reach, sB, tmp, p1, p2, f1lo,
+                              f1hi, f2lo, f2hi, part, muP, ends, aB, box)
         else:
             snB = snA
             lostB = lostA
