@@ -171,9 +171,9 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     b_sum = float(g["S"].sum()) / 3.0
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
-    # 32-bit column indices: a quarter less memory traffic per propagated step
+    # the kernel writes 32-bit column indices: a quarter less memory traffic per propagated step
     narrow = bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0)))
-    return MomentChain(row_ptr, cols.astype(np.int32), t0, t1, r0, r1, pos, sref, snext,
+    return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext),
                        (g["h1"], g["h2"]), moving, float(delta), narrow)
 

@@ -210,8 +210,9 @@ def _grow(a, n, cap):
 
 @njit
 def _grow1(a, n, cap):
-    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept."""
-    b = np.zeros(cap)
+    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept, the rest unset (not
+    zeroed: writing zeros would touch memory that may never be used)."""
+    b = np.empty(cap, dtype=a.dtype)
     b[:n] = a[:n]
     return b
 
@@ -234,7 +235,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     snext = np.empty(cap)
     n_states = 0
     vcap = 1 << 16
-    cols = np.empty(vcap, dtype=np.int64)
+    cols = np.empty(vcap, dtype=np.int32)
     t0 = np.empty(vcap)
     t1 = np.empty(vcap)
     row_ptr = np.zeros(cap + 1, dtype=np.int64)
@@ -342,9 +343,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                     n_states += 1
                 if n_vals == cols.shape[0]:
                     vcap = 2 * cols.shape[0]
-                    c2a = np.empty(vcap, dtype=np.int64)
-                    c2a[:n_vals] = cols[:n_vals]
-                    cols = c2a
+                    cols = _grow1(cols, n_vals, vcap)
                     t0 = _grow1(t0, n_vals, vcap)
                     t1 = _grow1(t1, n_vals, vcap)
                 cols[n_vals] = t
@@ -356,7 +355,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         if status == TOO_MANY_STATES:
             break
         if r < 0:
-            start_cols = cols[row_start:n_vals].copy()
+            start_cols = cols[row_start:n_vals].astype(np.int64)
             start_vals = t0[row_start:n_vals].copy()
             n_vals = row_start
             for i in range(3):
@@ -369,10 +368,12 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 ab1[r, i] = (aB[i] - aA[i]) / (2.0 * d) if d > 0.0 else 0.0
             snext[r] = 0.5 * (snA + snB)
         r += 1
+    # the nonzeros are returned as views of their buffers: a copy would touch as much memory
+    # again (the buffers' unused ends were never written)
     return (status, pos[:n_states].copy(), sref[:n_states].copy(), snext[:n_states].copy(),
-            row_ptr[:n_states + 1].copy(), cols[:n_vals].copy(), t0[:n_vals].copy(),
-            t1[:n_vals].copy(), ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols,
-            start_vals, start_abs, start_snext)
+            row_ptr[:n_states + 1].copy(), cols[:n_vals], t0[:n_vals], t1[:n_vals],
+            ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols, start_vals, start_abs,
+            start_snext)
 
 
 @njit
