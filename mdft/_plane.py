@@ -87,7 +87,7 @@ def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
 @njit
 def _y_interval(x, ex, ey, bound, ylo, yhi):
     """The part of ``[ylo, yhi]`` with ``ex[i] x + ey[i] y < bound`` for every ``i``."""
-    for i in range(ex.shape[0]):
+    for i in range(len(ex)):
         rest = bound - ex[i] * x
         if ey[i] > 1e-14:
             lim = rest / ey[i]
@@ -103,13 +103,13 @@ def _y_interval(x, ex, ey, bound, ylo, yhi):
 
 
 @njit
-def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out):
+def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out, start):
     """Points of ``(lo, hi)`` where the inside part of the column at ``x`` changes form:
     a line meets the cell's bottom or top edge (a kink), a line parallel to the y axis (a
-    jump), two lines meet (a kink). Written to ``out`` in increasing order; their number is
-    returned."""
-    n = 0
-    m = ex.shape[0]
+    jump), two lines meet (a kink). Written to ``out[start:]`` in increasing order; their
+    number is returned."""
+    n = start
+    m = len(ex)
     for i in range(m):
         if abs(ey[i]) > 1e-14:
             if abs(ex[i]) <= 1e-14:
@@ -132,14 +132,14 @@ def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out):
                 if lo < x and x < hi:
                     out[n] = x
                     n += 1
-    for a in range(1, n):  # insertion sort: a handful of points
+    for a in range(start + 1, n):  # insertion sort: a handful of points
         v = out[a]
         b = a - 1
-        while b >= 0 and out[b] > v:
+        while b >= start and out[b] > v:
             out[b + 1] = out[b]
             b -= 1
         out[b + 1] = v
-    return n
+    return n - start
 
 
 @njit
@@ -156,7 +156,7 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     """
     cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
     cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
-    ends = np.empty(3 * ex.shape[0] + 2)
+    ends = np.empty(3 * len(ex) + 2)
     return cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi,
                          ends)
 
@@ -165,7 +165,8 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
 def cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi, ends):
     """:func:`cut_mass` given the normal CDFs ``cdf_lo = Phi((ylo - my) / sy)`` and
     ``cdf_hi = Phi((yhi - my) / sy)`` of the cell's own edges (used when ``sy > 0``)
-    and a work array ``ends`` of at least ``3 len(ex) + 2`` entries."""
+    and a work array ``ends`` of at least ``3 len(ex) + 2`` entries. ``ex`` and ``ey``
+    may be tuples (no reference counting in the loops over the nodes)."""
     width = xhi - xlo
     if sx <= width / 64.0:
         if not (xlo <= mx and mx < xhi):
@@ -177,7 +178,7 @@ def cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf
     if hi <= lo:
         return 0.0
     ends[0] = lo
-    n_ends = 1 + _breaks(lo, hi, ylo, yhi, ex, ey, bound, ends[1:])
+    n_ends = 1 + _breaks(lo, hi, ylo, yhi, ex, ey, bound, ends, 1)
     ends[n_ends] = hi
     norm = 1.0 / (sx * math.sqrt(2.0 * math.pi))
     total = 0.0

@@ -57,6 +57,10 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
     zm2 = E[0, 1] * m0 + E[1, 1] * m1 + E[2, 1] * m2
     bound = theta - s_next / 3.0
     lost = False
+    # the lines as tuples: arrays passed into the per-node helpers cost atomic reference
+    # counts at every call
+    ext = (ex[0], ex[1], ex[2])
+    eyt = (ey[0], ey[1], ey[2])
     for i in range(3):
         absorbed[i] = 0.0
     for j in range(J):
@@ -129,7 +133,7 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
                     if (t0 + reach[0] >= bound or t1 + reach[1] >= bound
                             or t2 + reach[2] >= bound):
                         v = cut_mass_with(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
-                                          c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound,
+                                          c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ext, eyt, bound,
                                           f2lo[b], f2hi[b], ends)
                         if v < _CUT:
                             continue
