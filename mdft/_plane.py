@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ._lattice import joint_upper, upper
-from ._numba import njit
+from ._numba import njit, njit_inline
 
 _SQRT2 = math.sqrt(2.0)
 # A window reaches this many component standard deviations around its mean.
@@ -50,7 +50,7 @@ def interval_mass(lo, hi, mu, sd):
     return 1.0 if (lo <= mu and mu < hi) else 0.0
 
 
-@njit
+@njit_inline
 def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
     """Probability that the step ends with each option chosen; added to ``out``; total returned.
 

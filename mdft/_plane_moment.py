@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ._numba import njit
+from ._numba import njit, njit_inline
 from ._plane_tail import WINDOW, check, fill, snapshot
 from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
                      _CUT)
@@ -170,7 +170,7 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
     return s_next, lost
 
 
-@njit
+@njit_inline
 def _margins(lo, hi, o, h, mu, sd, p, cdf_lo, cdf_hi):
     """``p[a] = interval_mass(c - h / 2, c + h / 2, mu, sd)`` for the cells ``a`` in
     ``[lo, hi]`` (centre ``c = o + a h``), with the normal CDFs at their lower and upper
