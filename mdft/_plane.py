@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ._lattice import joint_upper, upper
+from ._lattice import _GL_W, _GL_X, joint_upper, upper
 from ._numba import njit, njit_inline
 
 _SQRT2 = math.sqrt(2.0)
@@ -50,38 +50,43 @@ def interval_mass(lo, hi, mu, sd):
     return 1.0 if (lo <= mu and mu < hi) else 0.0
 
 
-@njit_inline
-def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
-    """Probability that the step ends with each option chosen; added to ``out``; total returned.
+@njit
+def absorb3(mu0, mu1, mu2, theta, sd_opt, pair_sd, pair_rho):
+    """Probability that the step ends with each option chosen: ``(total, p0, p1, p2)``.
 
-    Option ``i`` is chosen when ``P_i >= theta`` and ``P_i`` is the largest
-    preference: ``Pr(P_i >= theta) - sum_k Pr(P_i >= theta, P_k > P_i)`` (all
-    three past the threshold cannot happen below a summed preference of
-    ``3 theta``). A joint term is at most either tail and is skipped when one
-    of them is below 1e-15.
+    ``mu0, mu1, mu2`` is the mean of ``P``; ``sd_opt`` (3), ``pair_sd`` and ``pair_rho``
+    (3 x 3) are tuples (value types: no reference counting per call). Option ``i`` is
+    chosen when ``P_i >= theta`` and ``P_i`` is the largest preference:
+    ``Pr(P_i >= theta) - sum_k Pr(P_i >= theta, P_k > P_i)`` (all three past the
+    threshold cannot happen below a summed preference of ``3 theta``). A joint term is at
+    most either tail and is skipped when one of them is below 1e-15.
     """
+    muP = (mu0, mu1, mu2)
+    tails = (upper(mu0, sd_opt[0], theta), upper(mu1, sd_opt[1], theta),
+             upper(mu2, sd_opt[2], theta))
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
     total = 0.0
-    tail0 = upper(muP[0], sd_opt[0], theta)
-    tail1 = upper(muP[1], sd_opt[1], theta)
-    tail2 = upper(muP[2], sd_opt[2], theta)
     for i in range(3):
-        pi = tail0 if i == 0 else (tail1 if i == 1 else tail2)
+        pi = tails[i]
         if pi <= 0.0:
             continue
-        tail_i = pi
         for k in range(3):
-            if k == i:
+            if k == i or min(tails[i], tails[k]) < 1e-15:
                 continue
-            tail_k = tail0 if k == 0 else (tail1 if k == 1 else tail2)
-            if min(tail_i, tail_k) < 1e-15:
-                continue
-            pi -= joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i], pair_sd[i, k], 0.0,
-                              pair_rho[i, k], gl_x, gl_w)
+            pi -= joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i], pair_sd[i][k], 0.0,
+                              pair_rho[i][k], _GL_X, _GL_W)
         if pi < 0.0:
             pi = 0.0
-        out[i] = pi
+        if i == 0:
+            out0 = pi
+        elif i == 1:
+            out1 = pi
+        else:
+            out2 = pi
         total += pi
-    return total
+    return total, out0, out1, out2
 
 
 @njit
