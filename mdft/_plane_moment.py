@@ -209,6 +209,14 @@ def _grow(a, n, cap):
 
 
 @njit
+def _doubled(cap, need):
+    """``cap`` doubled until it holds ``need``."""
+    while cap < need:
+        cap *= 2
+    return cap
+
+
+@njit
 def _grow1(a, n, cap):
     """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept, the rest unset (not
     zeroed: writing zeros would touch memory that may never be used)."""
@@ -310,16 +318,12 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         # reassigned inside that loop would be reference-counted at every cell
         area = max(box[1] - box[0] + 1, 0) * max(box[3] - box[2] + 1, 0)
         if n_vals + area > cols.shape[0]:
-            vcap = cols.shape[0]
-            while vcap < n_vals + area:
-                vcap *= 2
+            vcap = _doubled(cols.shape[0], n_vals + area)
             cols = _grow1(cols, n_vals, vcap)
             t0 = _grow1(t0, n_vals, vcap)
             t1 = _grow1(t1, n_vals, vcap)
         if n_states + area > pos.shape[0]:
-            cap = pos.shape[0]
-            while cap < n_states + area:
-                cap *= 2
+            cap = _doubled(pos.shape[0], n_states + area)
             pos = _grow(pos, n_states, cap)
             ab0 = _grow(ab0, n_states, cap)
             ab1 = _grow(ab1, n_states, cap)
