@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import prange
 
-from ._numba import njit, njit_parallel
+from ._numba import njit, njit_inline, njit_parallel
 
 _SQRT2 = math.sqrt(2.0)
 
@@ -79,7 +79,7 @@ def cdf(mean, sd, x):
     return 1.0 if mean < x else 0.0
 
 
-@njit
+@njit_inline
 def bivariate_upper(h, k, rho, gl_x, gl_w):
     """``Pr(X > h, Y > k)`` for standard normals with correlation ``rho``, ``|rho| < 1``.
 
@@ -105,7 +105,7 @@ def bivariate_upper(h, k, rho, gl_x, gl_w):
     return min(max(value, 0.0), 1.0)
 
 
-@njit
+@njit_inline
 def joint_upper(mx, sx, a, my, sy, b, rho, gl_x, gl_w):
     """``Pr(X >= a, Y > b)`` for jointly normal ``X``, ``Y`` (either may be degenerate)."""
     if sx == 0.0 and sy == 0.0:

@@ -20,8 +20,8 @@ import math
 
 import numpy as np
 
-from ._lattice import joint_upper, upper
-from ._numba import njit
+from ._lattice import _GL_W, _GL_X, joint_upper, upper
+from ._numba import njit, njit_inline
 
 _SQRT2 = math.sqrt(2.0)
 # A window reaches this many component standard deviations around its mean.
@@ -51,19 +51,23 @@ def interval_mass(lo, hi, mu, sd):
 
 
 @njit
-def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
-    """Probability that the step ends with each option chosen; added to ``out``; total returned.
+def absorb3(mu0, mu1, mu2, theta, sd_opt, pair_sd, pair_rho):
+    """Probability that the step ends with each option chosen: ``(total, p0, p1, p2)``.
 
-    Option ``i`` is chosen when ``P_i >= theta`` and ``P_i`` is the largest
-    preference: ``Pr(P_i >= theta) - sum_k Pr(P_i >= theta, P_k > P_i)`` (all
-    three past the threshold cannot happen below a summed preference of
-    ``3 theta``). A joint term is at most either tail and is skipped when one
-    of them is below 1e-15.
+    ``mu0, mu1, mu2`` is the mean of ``P``; ``sd_opt`` (3), ``pair_sd`` and ``pair_rho``
+    (3 x 3) are tuples (value types: no reference counting per call). Option ``i`` is
+    chosen when ``P_i >= theta`` and ``P_i`` is the largest preference:
+    ``Pr(P_i >= theta) - sum_k Pr(P_i >= theta, P_k > P_i)`` (all three past the
+    threshold cannot happen below a summed preference of ``3 theta``). A joint term is at
+    most either tail and is skipped when one of them is below 1e-15.
     """
+    muP = (mu0, mu1, mu2)
+    tails = (upper(mu0, sd_opt[0], theta), upper(mu1, sd_opt[1], theta),
+             upper(mu2, sd_opt[2], theta))
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
     total = 0.0
-    tails = np.empty(3)
-    for i in range(3):
-        tails[i] = upper(muP[i], sd_opt[i], theta)
     for i in range(3):
         pi = tails[i]
         if pi <= 0.0:
@@ -71,19 +75,24 @@ def absorb3(muP, theta, sd_opt, pair_sd, pair_rho, out, gl_x, gl_w):
         for k in range(3):
             if k == i or min(tails[i], tails[k]) < 1e-15:
                 continue
-            pi -= joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i], pair_sd[i, k], 0.0,
-                              pair_rho[i, k], gl_x, gl_w)
+            pi -= joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i], pair_sd[i][k], 0.0,
+                              pair_rho[i][k], _GL_X, _GL_W)
         if pi < 0.0:
             pi = 0.0
-        out[i] = pi
+        if i == 0:
+            out0 = pi
+        elif i == 1:
+            out1 = pi
+        else:
+            out2 = pi
         total += pi
-    return total
+    return total, out0, out1, out2
 
 
 @njit
 def _y_interval(x, ex, ey, bound, ylo, yhi):
     """The part of ``[ylo, yhi]`` with ``ex[i] x + ey[i] y < bound`` for every ``i``."""
-    for i in range(ex.shape[0]):
+    for i in range(len(ex)):
         rest = bound - ex[i] * x
         if ey[i] > 1e-14:
             lim = rest / ey[i]
@@ -99,13 +108,13 @@ def _y_interval(x, ex, ey, bound, ylo, yhi):
 
 
 @njit
-def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out):
+def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out, start):
     """Points of ``(lo, hi)`` where the inside part of the column at ``x`` changes form:
     a line meets the cell's bottom or top edge (a kink), a line parallel to the y axis (a
-    jump), two lines meet (a kink). Written to ``out`` in increasing order; their number is
-    returned."""
-    n = 0
-    m = ex.shape[0]
+    jump), two lines meet (a kink). Written to ``out[start:]`` in increasing order; their
+    number is returned."""
+    n = start
+    m = len(ex)
     for i in range(m):
         if abs(ey[i]) > 1e-14:
             if abs(ex[i]) <= 1e-14:
@@ -128,14 +137,14 @@ def _breaks(lo, hi, ylo, yhi, ex, ey, bound, out):
                 if lo < x and x < hi:
                     out[n] = x
                     n += 1
-    for a in range(1, n):  # insertion sort: a handful of points
+    for a in range(start + 1, n):  # insertion sort: a handful of points
         v = out[a]
         b = a - 1
-        while b >= 0 and out[b] > v:
+        while b >= start and out[b] > v:
             out[b + 1] = out[b]
             b -= 1
         out[b + 1] = v
-    return n
+    return n - start
 
 
 @njit
@@ -148,8 +157,21 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     (:func:`_breaks`), so that each piece is smooth, and each piece is
     integrated by composite six-point Gauss-Legendre on panels no wider than
     ``sx``. A component much narrower than the cell along ``x`` is taken as a
-    point there.
+    point there. :func:`cut_mass_with` is the same with the caller's buffers.
     """
+    cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
+    cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
+    ends = np.empty(3 * len(ex) + 2)
+    return cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi,
+                         ends)
+
+
+@njit
+def cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf_hi, ends):
+    """:func:`cut_mass` given the normal CDFs ``cdf_lo = Phi((ylo - my) / sy)`` and
+    ``cdf_hi = Phi((yhi - my) / sy)`` of the cell's own edges (used when ``sy > 0``)
+    and a work array ``ends`` of at least ``3 len(ex) + 2`` entries. ``ex`` and ``ey``
+    may be tuples (no reference counting in the loops over the nodes)."""
     width = xhi - xlo
     if sx <= width / 64.0:
         if not (xlo <= mx and mx < xhi):
@@ -160,14 +182,10 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     hi = min(xhi, mx + _WIDTH * sx)
     if hi <= lo:
         return 0.0
-    ends = np.empty(3 * ex.shape[0] + 2)
     ends[0] = lo
-    n_ends = 1 + _breaks(lo, hi, ylo, yhi, ex, ey, bound, ends[1:])
+    n_ends = 1 + _breaks(lo, hi, ylo, yhi, ex, ey, bound, ends, 1)
     ends[n_ends] = hi
     norm = 1.0 / (sx * math.sqrt(2.0 * math.pi))
-    # the cell's own edges recur at most nodes: their normal CDFs are taken once
-    cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
-    cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0
     total = 0.0
     for piece in range(n_ends):
         p0 = ends[piece]

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from . import _lattice, _plane_moment
+from . import _plane_moment
 from ._lattice_chain import pair_parameters, sum_bounds, sum_is_constant
 
 logger = logging.getLogger(__name__)
@@ -159,8 +159,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     out = _plane_moment.build(
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],
-        g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], _lattice._GL_X, _lattice._GL_W,
-        np.asarray(ref, dtype=np.float64), g["s_lo"], g["s_hi"], float(delta), max_states,
+        g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], np.asarray(ref, dtype=np.float64),
+        g["s_lo"], g["s_hi"], float(delta), max_states,
     )
     (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
      start_abs, start_snext) = out
@@ -171,9 +171,9 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     b_sum = float(g["S"].sum()) / 3.0
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
-    # 32-bit column indices: a quarter less memory traffic per propagated step
+    # the kernel writes 32-bit column indices: a quarter less memory traffic per propagated step
     narrow = bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0)))
-    return MomentChain(row_ptr, cols.astype(np.int32), t0, t1, r0, r1, pos, sref, snext,
+    return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext),
                        (g["h1"], g["h2"]), moving, float(delta), narrow)
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from ._numba import njit
 from ._plane_tail import WINDOW, check, fill, snapshot
-from ._plane import absorb3, classify, cut_mass, centroid, interval_mass, _CUT, _WIDTH
+from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
+                     _CUT)
 
 # A step whose staying mass finds no cell (every candidate below the kernel cut) may count
 # it as chosen when it is below this; otherwise the resolution is refused.
@@ -27,29 +28,36 @@ _NEGLIGIBLE = 1e-7
 OK = 0
 TOO_MANY_STATES = 1
 LOST_MASS = 2
+# A target window reaches this many standard deviations of its component either way: a cell
+# beyond gets at most the normal tail there (6e-9), below _CUT, and would be left out anyway.
+_REACH = 5.7
 # Propagation leaves out states holding less than this share of the undecided mass.
 _SKIP = 1e-15
 
 
 @njit
-def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2, h1, h2,
-         n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, scratch, tmp, p1, p2, absorbed, box):
+def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
+         h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, scratch, tmp, marg1, marg2, ends, absorbed,
+         box):
     """One source at ``(z, s)``: choices into ``absorbed``, staying mass added to ``scratch``
-    (its bounding box in ``box``); returns ``(s_next, lost)``."""
+    (its bounding box in ``box``); returns ``(s_next, lost)``.
+
+    Small inputs come as tuples (value types; an array argument costs two atomic reference
+    counts per call): ``S`` (3 x 3), the lines ``ex``, ``ey`` (the columns of ``E``),
+    ``reach[i]``, the half-extent of a cell along line ``i`` (:func:`mdft._plane.classify`),
+    ``sd_cell``, ``sd_exact``, ``sd_opt``, ``pair_sd`` and ``pair_rho``. ``tmp`` is zero on
+    entry and on return; ``marg1`` (3, n1), ``marg2`` (3, n2) and ``ends`` are work space
+    (:func:`_margins`, :func:`mdft._plane.cut_mass_with`)."""
     J = w.shape[0]
-    part = np.zeros(3)
-    muP = np.empty(3)
-    ex = E[:, 0].copy()
-    ey = E[:, 1].copy()
-    P0 = E[0, 0] * z1 + E[0, 1] * z2 + s / 3.0
-    P1 = E[1, 0] * z1 + E[1, 1] * z2 + s / 3.0
-    P2 = E[2, 0] * z1 + E[2, 1] * z2 + s / 3.0
-    m0 = S[0, 0] * P0 + S[0, 1] * P1 + S[0, 2] * P2
-    m1 = S[1, 0] * P0 + S[1, 1] * P1 + S[1, 2] * P2
-    m2 = S[2, 0] * P0 + S[2, 1] * P1 + S[2, 2] * P2
+    P0 = ex[0] * z1 + ey[0] * z2 + s / 3.0
+    P1 = ex[1] * z1 + ey[1] * z2 + s / 3.0
+    P2 = ex[2] * z1 + ey[2] * z2 + s / 3.0
+    m0 = S[0][0] * P0 + S[0][1] * P1 + S[0][2] * P2
+    m1 = S[1][0] * P0 + S[1][1] * P1 + S[1][2] * P2
+    m2 = S[2][0] * P0 + S[2][1] * P1 + S[2][2] * P2
     s_next = m0 + m1 + m2
-    zm1 = E[0, 0] * m0 + E[1, 0] * m1 + E[2, 0] * m2
-    zm2 = E[0, 1] * m0 + E[1, 1] * m1 + E[2, 1] * m2
+    zm1 = ex[0] * m0 + ex[1] * m1 + ex[2] * m2
+    zm2 = ey[0] * m0 + ey[1] * m1 + ey[2] * m2
     bound = theta - s_next / 3.0
     lost = False
     for i in range(3):
@@ -57,21 +65,19 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
     for j in range(J):
         if w[j] <= 0.0:
             continue
-        muP[0] = m0 + CM[0, j]
-        muP[1] = m1 + CM[1, j]
-        muP[2] = m2 + CM[2, j]
-        for i in range(3):
-            part[i] = 0.0
-        p_abs = absorb3(muP, theta, sd_opt, pair_sd, pair_rho, part, gl_x, gl_w)
+        p_abs, pa0, pa1, pa2 = absorb3(m0 + CM[0, j], m1 + CM[1, j], m2 + CM[2, j], theta,
+                                       sd_opt, pair_sd, pair_rho)
+        part = (pa0, pa1, pa2)
         stay = 1.0 - p_abs
         if stay <= 1e-14:
             for i in range(3):
                 absorbed[i] += w[j] * part[i] / p_abs
             continue
         inside = 0.0
-        lo1 = 0
+        # the cells written to tmp (an empty range: none)
+        lo1 = n1
         hi1 = -1
-        lo2 = 0
+        lo2 = n2
         hi2 = -1
         for attempt in range(2):
             if attempt == 0:
@@ -83,39 +89,59 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
                 for a in range(lo1, hi1 + 1):
                     for b in range(lo2, hi2 + 1):
                         tmp[a, b] = 0.0
+                lo1 = n1
+                hi1 = -1
+                lo2 = n2
+                hi2 = -1
                 mu1 = zm1 + exact[0, j]
                 mu2 = zm2 + exact[1, j]
                 sd1 = sd_exact[0]
                 sd2 = sd_exact[1]
-            lo1 = max(int(math.floor((mu1 - _WIDTH * sd1 - o1) / h1 + 0.5)), 0)
-            hi1 = min(int(math.floor((mu1 + _WIDTH * sd1 - o1) / h1 + 0.5)), n1 - 1)
-            lo2 = max(int(math.floor((mu2 - _WIDTH * sd2 - o2) / h2 + 0.5)), 0)
-            hi2 = min(int(math.floor((mu2 + _WIDTH * sd2 - o2) / h2 + 0.5)), n2 - 1)
+            # the window: cells within _REACH standard deviations of the mean (the cells
+            # beyond get less than _CUT)
+            w_lo1 = max(int(math.floor((mu1 - _REACH * sd1 - o1) / h1 + 0.5)), 0)
+            w_hi1 = min(int(math.floor((mu1 + _REACH * sd1 - o1) / h1 + 0.5)), n1 - 1)
+            w_lo2 = max(int(math.floor((mu2 - _REACH * sd2 - o2) / h2 + 0.5)), 0)
+            w_hi2 = min(int(math.floor((mu2 + _REACH * sd2 - o2) / h2 + 0.5)), n2 - 1)
             inside = 0.0
-            for a in range(lo1, hi1 + 1):
+            _margins(w_lo1, w_hi1, o1, h1, mu1, sd1, marg1)
+            p2max = _margins(w_lo2, w_hi2, o2, h2, mu2, sd2, marg2)
+            for a in range(w_lo1, w_hi1 + 1):
+                pa = marg1[0, a]
+                if pa * p2max < _CUT:
+                    continue  # every cell of the column gets less than the cut
                 c1 = o1 + a * h1
-                p1[a] = interval_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, mu1, sd1)
-            for b in range(lo2, hi2 + 1):
-                c2 = o2 + b * h2
-                p2[b] = interval_mass(c2 - 0.5 * h2, c2 + 0.5 * h2, mu2, sd2)
-            for a in range(lo1, hi1 + 1):
-                c1 = o1 + a * h1
-                for b in range(lo2, hi2 + 1):
-                    tmp[a, b] = 0.0
-                    v = p1[a] * p2[b]
+                e0 = ex[0] * c1
+                e1 = ex[1] * c1
+                e2 = ex[2] * c1
+                for b in range(w_lo2, w_hi2 + 1):
+                    v = pa * marg2[0, b]
                     if v < _CUT:
                         continue
                     c2 = o2 + b * h2
-                    kind = classify(c1, c2, h1, h2, E, bound)
-                    if kind == 2:
+                    # where the cell lies (mdft._plane.classify): outside, across, inside
+                    t0 = e0 + ey[0] * c2
+                    t1 = e1 + ey[1] * c2
+                    t2 = e2 + ey[2] * c2
+                    if (t0 - reach[0] >= bound or t1 - reach[1] >= bound
+                            or t2 - reach[2] >= bound):
                         continue
-                    if kind == 1:
-                        v = cut_mass(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
-                                     c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound)
+                    if (t0 + reach[0] >= bound or t1 + reach[1] >= bound
+                            or t2 + reach[2] >= bound):
+                        v = cut_mass_with(c1 - 0.5 * h1, c1 + 0.5 * h1, c2 - 0.5 * h2,
+                                          c2 + 0.5 * h2, mu1, sd1, mu2, sd2, ex, ey, bound,
+                                          marg2[1, b], marg2[2, b], ends)
                         if v < _CUT:
                             continue
                     tmp[a, b] = v
                     inside += v
+                    if a < lo1:
+                        lo1 = a
+                    hi1 = a
+                    if b < lo2:
+                        lo2 = b
+                    if b > hi2:
+                        hi2 = b
             if inside >= 0.5 * stay:
                 break
         if inside <= 0.0:
@@ -141,6 +167,40 @@ def _row(z1, z2, s, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2
 
 
 @njit
+def _margins(lo, hi, o, h, mu, sd, marg):
+    """``marg[0, a] = interval_mass(c - h / 2, c + h / 2, mu, sd)`` for the cells ``a`` in
+    ``[lo, hi]`` (centre ``c = o + a h``), with the normal CDFs at their lower and upper
+    edges in ``marg[1, a]`` and ``marg[2, a]`` when ``sd > 0`` (an edge shared with the
+    previous cell is evaluated once); returns the largest mass."""
+    top = 0.0
+    if sd > 0.0:
+        prev_edge = 0.0
+        prev_cdf = 0.0
+        for a in range(lo, hi + 1):
+            c = o + a * h
+            e_lo = c - 0.5 * h
+            e_hi = c + 0.5 * h
+            f_lo = prev_cdf if (a > lo and e_lo == prev_edge) else phi_cdf((e_lo - mu) / sd)
+            f_hi = phi_cdf((e_hi - mu) / sd)
+            v = f_hi - f_lo if e_lo < e_hi else 0.0
+            marg[0, a] = v
+            marg[1, a] = f_lo
+            marg[2, a] = f_hi
+            prev_edge = e_hi
+            prev_cdf = f_hi
+            if v > top:
+                top = v
+    else:
+        for a in range(lo, hi + 1):
+            c = o + a * h
+            v = interval_mass(c - 0.5 * h, c + 0.5 * h, mu, sd)
+            marg[0, a] = v
+            if v > top:
+                top = v
+    return top
+
+
+@njit
 def _grow(a, n, cap):
     """``a`` (rows, 3 or 2 columns) with room for ``cap`` rows; the first ``n`` kept."""
     b = np.zeros((cap, a.shape[1]))
@@ -149,17 +209,25 @@ def _grow(a, n, cap):
 
 
 @njit
+def _doubled(cap, need):
+    """``cap`` doubled until it holds ``need``."""
+    while cap < need:
+        cap *= 2
+    return cap
+
+
+@njit
 def _grow1(a, n, cap):
-    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept."""
-    b = np.zeros(cap)
+    """``a`` (1-D) with room for ``cap`` entries; the first ``n`` kept, the rest unset (not
+    zeroed: writing zeros would touch memory that may never be used)."""
+    b = np.empty(cap, dtype=a.dtype)
     b[:n] = a[:n]
     return b
 
 
 @njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
-          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w, ref, s_lo, s_hi, delta,
-          max_states):
+          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states):
     """Discover the reachable cells from the exact start and build the moment chain.
 
     ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
@@ -174,7 +242,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     snext = np.empty(cap)
     n_states = 0
     vcap = 1 << 16
-    cols = np.empty(vcap, dtype=np.int64)
+    cols = np.empty(vcap, dtype=np.int32)
     t0 = np.empty(vcap)
     t1 = np.empty(vcap)
     row_ptr = np.zeros(cap + 1, dtype=np.int64)
@@ -184,10 +252,28 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     sA = np.zeros((n1, n2))
     sB = np.zeros((n1, n2))
     tmp = np.zeros((n1, n2))
-    p1 = np.zeros(n1)
-    p2 = np.zeros(n2)
     aA = np.zeros(3)
     aB = np.zeros(3)
+    # work space of _row, allocated once
+    marg1 = np.zeros((3, n1))
+    marg2 = np.zeros((3, n2))
+    ends = np.zeros(3 * 3 + 2)
+    # small inputs of _row as tuples (value types: no reference counting per call)
+    St = ((S[0, 0], S[0, 1], S[0, 2]), (S[1, 0], S[1, 1], S[1, 2]), (S[2, 0], S[2, 1], S[2, 2]))
+    ex = (E[0, 0], E[1, 0], E[2, 0])
+    ey = (E[0, 1], E[1, 1], E[2, 1])
+    reach = (0.5 * (abs(E[0, 0]) * h1 + abs(E[0, 1]) * h2),
+             0.5 * (abs(E[1, 0]) * h1 + abs(E[1, 1]) * h2),
+             0.5 * (abs(E[2, 0]) * h1 + abs(E[2, 1]) * h2))
+    sdc = (sd_cell[0], sd_cell[1])
+    sde = (sd_exact[0], sd_exact[1])
+    sdo = (sd_opt[0], sd_opt[1], sd_opt[2])
+    psd = ((pair_sd[0, 0], pair_sd[0, 1], pair_sd[0, 2]),
+           (pair_sd[1, 0], pair_sd[1, 1], pair_sd[1, 2]),
+           (pair_sd[2, 0], pair_sd[2, 1], pair_sd[2, 2]))
+    prho = ((pair_rho[0, 0], pair_rho[0, 1], pair_rho[0, 2]),
+            (pair_rho[1, 0], pair_rho[1, 1], pair_rho[1, 2]),
+            (pair_rho[2, 0], pair_rho[2, 1], pair_rho[2, 2]))
     box = np.zeros(4, dtype=np.int64)
     start_cols = np.empty(0, dtype=np.int64)
     start_vals = np.empty(0)
@@ -210,13 +296,13 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         box[1] = -1
         box[2] = n2
         box[3] = -1
-        snA, lostA = _row(z1, z2, s_mid - d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact,
-                          theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, gl_x, gl_w,
-                          sA, tmp, p1, p2, aA, box)
+        snA, lostA = _row(z1, z2, s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
+                          sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
+                          marg2, ends, aA, box)
         if d > 0.0:
-            snB, lostB = _row(z1, z2, s_mid + d, S, E, CM, w, shrunk, sd_cell, exact,
-                              sd_exact, theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd,
-                              pair_rho, gl_x, gl_w, sB, tmp, p1, p2, aB, box)
+            snB, lostB = _row(z1, z2, s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
+                              sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
+                              marg1, marg2, ends, aB, box)
         else:
             snB = snA
             lostB = lostA
@@ -228,6 +314,24 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         if lostA or lostB:
             status = LOST_MASS
         row_start = n_vals
+        # room for the row's nonzeros and new states before the loop over its cells: arrays
+        # reassigned inside that loop would be reference-counted at every cell
+        area = max(box[1] - box[0] + 1, 0) * max(box[3] - box[2] + 1, 0)
+        if n_vals + area > cols.shape[0]:
+            vcap = _doubled(cols.shape[0], n_vals + area)
+            cols = _grow1(cols, n_vals, vcap)
+            t0 = _grow1(t0, n_vals, vcap)
+            t1 = _grow1(t1, n_vals, vcap)
+        if n_states + area > pos.shape[0]:
+            cap = _doubled(pos.shape[0], n_states + area)
+            pos = _grow(pos, n_states, cap)
+            ab0 = _grow(ab0, n_states, cap)
+            ab1 = _grow(ab1, n_states, cap)
+            sref = _grow1(sref, n_states, cap)
+            snext = _grow1(snext, n_states, cap)
+            rp2 = np.zeros(cap + 1, dtype=np.int64)
+            rp2[:n_states + 1] = row_ptr[:n_states + 1]
+            row_ptr = rp2
         for a in range(box[0], box[1] + 1):
             for b in range(box[2], box[3] + 1):
                 vA = sA[a, b]
@@ -241,16 +345,6 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                     if n_states >= max_states:
                         status = TOO_MANY_STATES
                         break
-                    if n_states == pos.shape[0]:
-                        cap = 2 * pos.shape[0]
-                        pos = _grow(pos, n_states, cap)
-                        ab0 = _grow(ab0, n_states, cap)
-                        ab1 = _grow(ab1, n_states, cap)
-                        sref = _grow1(sref, n_states, cap)
-                        snext = _grow1(snext, n_states, cap)
-                        rp2 = np.zeros(cap + 1, dtype=np.int64)
-                        rp2[:n_states + 1] = row_ptr[:n_states + 1]
-                        row_ptr = rp2
                     c1 = o1 + a * h1
                     c2 = o2 + b * h2
                     sr = min(max(ref[0] + ref[1] * c1 + ref[2] * c2, s_lo), s_hi)
@@ -265,13 +359,6 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                     t = n_states
                     index[a, b] = t
                     n_states += 1
-                if n_vals == cols.shape[0]:
-                    vcap = 2 * cols.shape[0]
-                    c2a = np.empty(vcap, dtype=np.int64)
-                    c2a[:n_vals] = cols[:n_vals]
-                    cols = c2a
-                    t0 = _grow1(t0, n_vals, vcap)
-                    t1 = _grow1(t1, n_vals, vcap)
                 cols[n_vals] = t
                 t0[n_vals] = 0.5 * (vA + vB)
                 t1[n_vals] = (vB - vA) / (2.0 * d) if d > 0.0 else 0.0
@@ -281,7 +368,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         if status == TOO_MANY_STATES:
             break
         if r < 0:
-            start_cols = cols[row_start:n_vals].copy()
+            start_cols = cols[row_start:n_vals].astype(np.int64)
             start_vals = t0[row_start:n_vals].copy()
             n_vals = row_start
             for i in range(3):
@@ -294,10 +381,12 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 ab1[r, i] = (aB[i] - aA[i]) / (2.0 * d) if d > 0.0 else 0.0
             snext[r] = 0.5 * (snA + snB)
         r += 1
+    # the nonzeros are returned as views of their buffers: a copy would touch as much memory
+    # again (the buffers' unused ends were never written)
     return (status, pos[:n_states].copy(), sref[:n_states].copy(), snext[:n_states].copy(),
-            row_ptr[:n_states + 1].copy(), cols[:n_vals].copy(), t0[:n_vals].copy(),
-            t1[:n_vals].copy(), ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols,
-            start_vals, start_abs, start_snext)
+            row_ptr[:n_states + 1].copy(), cols[:n_vals], t0[:n_vals], t1[:n_vals],
+            ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols, start_vals, start_abs,
+            start_snext)
 
 
 @njit

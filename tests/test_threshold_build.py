@@ -1,0 +1,140 @@
+"""Tests of the compiled pieces of the three-option chain's build (``mdft._plane``,
+``mdft._plane_moment``) against the plain formulas they stand for.
+
+The build computes the same numbers as those formulas, only fewer times (edge CDFs
+shared between neighbouring cells, windows that stop where cells get less than the
+cut, small inputs as tuples): each helper is checked for exact equality with the
+formula on random inputs, and a built chain for conservation of every row's mass.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mdft import MDFTModel, _lattice, _plane, _plane_moment
+from mdft._lattice_chain import pair_parameters
+from mdft._plane_chain import build_moment_chain
+
+
+@settings(deadline=None, max_examples=200)
+@given(o=st.floats(-20.0, 20.0), h=st.floats(0.05, 5.0), mu=st.floats(-30.0, 30.0),
+       sd=st.one_of(st.just(0.0), st.floats(0.01, 10.0)), lo=st.integers(0, 30),
+       n=st.integers(1, 30))
+def test_margins_equal_interval_mass_cell_by_cell(o, h, mu, sd, lo, n):
+    """``_margins`` writes exactly ``interval_mass`` of every cell and, for ``sd > 0``, the
+    normal CDFs at the cell's edges (shared edges taken from the neighbour)."""
+    hi = lo + n - 1
+    marg = np.full((3, hi + 1), np.nan)
+    top = _plane_moment._margins(lo, hi, o, h, mu, sd, marg)
+    want = []
+    for a in range(lo, hi + 1):
+        c = o + a * h
+        want.append(_plane.interval_mass(c - 0.5 * h, c + 0.5 * h, mu, sd))
+        assert marg[0, a] == want[-1]
+        if sd > 0.0:
+            assert marg[1, a] == _plane.phi_cdf((c - 0.5 * h - mu) / sd)
+            assert marg[2, a] == _plane.phi_cdf((c + 0.5 * h - mu) / sd)
+    assert top == max(max(want), 0.0)
+    assert np.isnan(marg[:, :lo]).all()  # nothing written outside the window
+
+
+@settings(deadline=None, max_examples=300)
+@given(o=st.floats(-20.0, 20.0), h=st.floats(0.02, 5.0), mu=st.floats(-30.0, 30.0),
+       sd=st.floats(0.005, 10.0))
+def test_cells_beyond_the_window_get_less_than_the_cut(o, h, mu, sd):
+    """The window of a row stops ``_REACH`` standard deviations from the mean: the first
+    cell beyond it on either side gets less than the cut, so leaving it out changes
+    nothing (the cell would have been dropped)."""
+    reach = _plane_moment._REACH
+    lo = int(math.floor((mu - reach * sd - o) / h + 0.5))
+    hi = int(math.floor((mu + reach * sd - o) / h + 0.5))
+    for a in (lo - 1, hi + 1):
+        c = o + a * h
+        assert _plane.interval_mass(c - 0.5 * h, c + 0.5 * h, mu, sd) < _plane._CUT
+
+
+def _absorb_formula(muP, theta, sd_opt, pair_sd, pair_rho):
+    """``Pr(P_i >= theta) - sum_k Pr(P_i >= theta, P_k > P_i)``, with the same
+    skipping of joint terms whose tails are negligible, on arrays."""
+    tails = [_lattice.upper(muP[i], sd_opt[i], theta) for i in range(3)]
+    out = np.zeros(3)
+    for i in range(3):
+        pi = tails[i]
+        if pi <= 0.0:
+            continue
+        for k in range(3):
+            if k == i or min(tails[i], tails[k]) < 1e-15:
+                continue
+            pi -= _lattice.joint_upper(muP[i], sd_opt[i], theta, muP[k] - muP[i],
+                                       pair_sd[i, k], 0.0, pair_rho[i, k], _lattice._GL_X,
+                                       _lattice._GL_W)
+        out[i] = max(pi, 0.0)
+    return out
+
+
+@settings(deadline=None, max_examples=200)
+@given(seed=st.integers(0, 2**32 - 1), theta=st.floats(1.0, 60.0),
+       spread=st.floats(0.0, 3.0))
+def test_absorb3_on_tuples_equals_the_formula_on_arrays(seed, theta, spread):
+    """``absorb3`` (tuples in, probabilities out) equals the choice formula evaluated on
+    arrays, bit for bit, for random means near and across the threshold and random noise
+    covariances (the standard contrast's and arbitrary ones)."""
+    rng = np.random.default_rng(seed)
+    muP = theta + spread * rng.normal(size=3) * theta / 4
+    L = rng.normal(size=(3, 3))
+    cov = L @ L.T * rng.uniform(0.05, 4.0)
+    sd_opt = np.sqrt(np.diag(cov))
+    pair_sd, pair_rho = pair_parameters(cov, sd_opt)
+    got = _plane.absorb3(muP[0], muP[1], muP[2], theta, tuple(sd_opt),
+                         tuple(map(tuple, pair_sd)), tuple(map(tuple, pair_rho)))
+    want = _absorb_formula(muP, theta, sd_opt, pair_sd, pair_rho)
+    assert got[1:] == tuple(want)
+    assert got[0] == want[0] + want[1] + want[2]
+
+
+@settings(deadline=None, max_examples=100)
+@given(mx=st.floats(-3.0, 3.0), my=st.floats(-3.0, 3.0), sx=st.floats(0.02, 2.0),
+       sy=st.floats(0.2, 2.0), hx=st.floats(0.3, 1.5), hy=st.floats(0.3, 1.5),
+       bound=st.floats(-1.0, 1.0), turn=st.floats(0.0, math.pi))
+def test_cut_mass_with_tuples_and_given_edge_cdfs_equals_cut_mass(mx, my, sx, sy, hx, hy,
+                                                                  bound, turn):
+    """The build's form of the cut-cell integral (lines as tuples, the cell's edge CDFs
+    passed in, a reused work array) gives exactly what ``cut_mass`` gives."""
+    E = np.c_[np.array([2.0, -1.0, -1.0]) / math.sqrt(6.0),
+              np.array([0.0, 1.0, -1.0]) / math.sqrt(2.0)]
+    E = E @ np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    ex, ey = np.ascontiguousarray(E[:, 0]), np.ascontiguousarray(E[:, 1])
+    xlo, ylo = -hx / 2, -hy / 2
+    want = _plane.cut_mass(xlo, xlo + hx, ylo, ylo + hy, mx, sx, my, sy, ex, ey, bound)
+    work = np.full(11, np.nan)
+    got = _plane.cut_mass_with(xlo, xlo + hx, ylo, ylo + hy, mx, sx, my, sy, tuple(ex),
+                               tuple(ey), bound, _plane.phi_cdf((ylo - my) / sy),
+                               _plane.phi_cdf((ylo + hy - my) / sy), work)
+    assert got == want
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_built_rows_conserve_mass(seed):
+    """Every row of a built chain (random three-option model, moving sum) splits its mass
+    between staying and the choices: ``sum T0 + sum R0 = 1`` and ``sum T1 + sum R1 = 0``;
+    the nonzeros and their 32-bit columns line up with the row pointers."""
+    rng = np.random.default_rng(seed)
+    M = rng.uniform(0.5, 4.0, size=(3, 2))
+    model = MDFTModel(M, rng.dirichlet([4.0, 4.0]), phi1=0.03, phi2=0.06, beta=5.0,
+                      sigma2=float(rng.uniform(0.5, 2.0)))
+    theta = 12.0
+    chain = build_moment_chain(model, theta, 1.0, np.array([0.0, 0.0, 0.0]), 0.5, 60_000)
+    assert chain.cols.dtype == np.int32
+    nnz = chain.row_ptr[-1]
+    assert chain.cols.shape == chain.t0.shape == chain.t1.shape == (nnz,)
+    assert chain.cols.min() >= 0 and chain.cols.max() < chain.n_states
+    stay0 = np.add.reduceat(chain.t0, chain.row_ptr[:-1])
+    stay1 = np.add.reduceat(chain.t1, chain.row_ptr[:-1])
+    assert np.all(np.diff(chain.row_ptr) > 0)
+    np.testing.assert_allclose(stay0 + chain.r0.sum(axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(stay1 + chain.r1.sum(axis=1), 0.0, atol=1e-5)
+    first = chain.start_vals.sum() + chain.start_absorbed.sum()
+    assert first == pytest.approx(1.0, abs=1e-6)
