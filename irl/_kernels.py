@@ -334,17 +334,17 @@ def soft_backward_into(next_states, probs, succ, pattern_of, patterns, split, r_
                     for a in range(n_actions):
                         q[s, a] = 0.0
                     continue
-                pat = pattern_of[s]
+                pat = np.uint64(pattern_of[s])  # indices read from arrays as unsigned: no wraparound test
                 if shared[s] and simple[pat]:
                     # (the sums over successors are fused multiply-adds, one rounding each) the common part
                     # once, then each action's one successor of its own
                     common = 0.0
                     for k in range(n_succ):
-                        vk = v_next[succ[s, k]]
+                        vk = v_next[np.uint64(succ[s, k])]
                         g[k] = vk
                         common = _fma(base[pat, k], vk, common)
                     for a in range(n_actions):
-                        q[s, a] = _fma(discount, _fma(res_p[pat, a], g[res_k[pat, a]], common), r_bar[s, a])
+                        q[s, a] = _fma(discount, _fma(res_p[pat, a], g[np.uint64(res_k[pat, a])], common), r_bar[s, a])
                 elif shared[s]:
                     # summed over k in order for each action; four actions at a time in registers (the
                     # compiler packs them into one vector), then the rest one by one
@@ -453,7 +453,7 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, split,
             ms = m[s]
             if ms == 0.0 or terminal[s]:
                 continue
-            pat = pattern_of[s]
+            pat = np.uint64(pattern_of[s])  # indices read from arrays as unsigned: no wraparound test
             if shared[s] and simple[pat]:
                 # the common part times the total mass, then each action's one successor of its own
                 total = 0.0
@@ -465,10 +465,10 @@ def likelihood_adjoint(next_states, probs, succ, pattern_of, patterns_ak, split,
                 for k in range(n_succ):
                     acc[k] = base[pat, k] * total
                 for a in range(n_actions):
-                    k = res_k[pat, a]
+                    k = np.uint64(res_k[pat, a])
                     acc[k] = _fma(mass[a], res_p[pat, a], acc[k])
                 for k in range(n_succ):
-                    m_next[succ[s, k]] += discount * acc[k]
+                    m_next[np.uint64(succ[s, k])] += discount * acc[k]
             elif shared[s]:
                 # acc[k] summed over a in order; four successors at a time in registers, then the rest
                 for a in range(n_actions):

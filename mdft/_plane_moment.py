@@ -474,8 +474,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             sn = snext[r]
             carry = sn * xr + b_sum * u
             cu = sn * u + b_sum * dvar * xr
-            for k in range(row_ptr[r], row_ptr[r + 1]):
-                c = cols[k]
+            # unsigned indices: numba then omits the negative-index wraparound on every access,
+            # which made this loop (the propagation's whole cost) about 1.5-2 times slower
+            for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+                c = np.uint64(cols[k])
                 a0 = t0[k]
                 a1 = t1[k]
                 y[c] += a0 * xr + a1 * u
@@ -486,8 +488,8 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 occ[r, 2] += q[r]
                 v = q[r] - 2.0 * sr * mr + sr * sr * xr
                 q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
-                for k in range(row_ptr[r], row_ptr[r + 1]):
-                    yq[cols[k]] += t0[k] * q0
+                for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+                    yq[np.uint64(cols[k])] += t0[k] * q0
         new_mass = 0.0
         for r in range(n_states):
             x[r] = y[r]
