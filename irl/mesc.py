@@ -129,9 +129,8 @@ _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # MDP -> its t
 
 
 def _pass_tables(mdp):
-    """``(r0, psi's CSR arrays, successor_patterns, _split_patterns)`` of an MDP, made once per MDP object.
-
-    (Its arrays are read-only.)
+    """``(r0, psi's CSR arrays, successor_patterns, _split_patterns)`` of an MDP, made once per MDP object
+    (its arrays are read-only).
 
     ``r_bar = r0 - psi @ omega`` is the expected penalised reward of every (s, a).
     """

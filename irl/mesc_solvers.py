@@ -123,12 +123,7 @@ def lbfgsb(obj, w0, *, l1=0.0, l2=0.0, upper=None, free=None, scale=None, tol=1e
                 return True
         return False
 
-    if upper is None:
-        high = np.full(F, np.inf)
-    else:
-        high = np.broadcast_to(np.asarray(upper, dtype=np.float64), (F,)) / scale
-    if free is not None:
-        high = np.where(free, high, 0.0)
+    high = np.where(box[1], box[0] / scale, 0.0)  # the bounds of the solver's theta = omega / scale
     # a start that already meets the tolerance is the answer (L-BFGS-B would take one step first);
     # the solver's own first evaluation is this one, served from the objective's cache
     theta0 = np.clip(w0 / scale, 0.0, high)
