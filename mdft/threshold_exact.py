@@ -234,13 +234,15 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     The stopped MDFT process becomes an absorbing Markov chain on a grid of
     the preference state, solved without Monte Carlo noise, at a resolution
     chosen from the model and refined until the estimated error meets
-    ``atol`` and ``rt_rtol``. Works for two and three options.
+    ``atol`` and ``rt_rtol``. Works for two and three options; with more
+    options (no chain) the default fallback simulates to the tolerances.
 
     Parameters
     ----------
     model : MDFTModel
-        The model; two or three options, ``sigma2 > 0``, a contrast ``C``
-        whose columns sum to zero (the standard one does).
+        The model. The chain needs two or three options, ``sigma2 > 0`` and a
+        contrast ``C`` whose columns sum to zero (the standard one does);
+        more options are simulated (``fallback="simulation"``).
     theta : float
         Threshold, > 0: option ``i`` is chosen at the first step where
         ``P_i >= theta``; if several preferences reach it at the same step,
@@ -307,7 +309,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     Raises
     ------
     ValueError
-        Bad arguments; a model with more than three options or without noise
+        Bad arguments; a model with more than three options (unless the
+        fallback simulates it) or, for the chain, without noise
         (use :func:`mdft.simulate`); a contrast whose columns do not sum to
         zero; an initial preference at or above ``theta``; a feedback matrix
         under which the summed preference is not bounded; a model for which
@@ -351,13 +354,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     if not isinstance(model, MDFTModel):
         raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
     n = model.n_options
-    if n > _MAX_OPTIONS:
-        raise ValueError(
-            f"model has {n} options; threshold_probabilities handles at most {_MAX_OPTIONS} "
-            "(the chain's state space grows with every option); estimate threshold stopping "
-            "for more options with mdft.simulate(model, n_samples, "
-            "stopping=mdft.Threshold(theta))"
-        )
     theta = as_scalar("theta", theta, low=0.0, low_inclusive=False)
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
@@ -384,6 +380,24 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                 "for two options set n_cells="
             )
         resolution = as_scalar("resolution", resolution, low=0.3, high=2.0)
+    P0 = np.asarray(model.P0)
+    if np.any(P0 >= theta):
+        raise ValueError(
+            f"the initial preference P0 must lie below theta={theta:g} for every option "
+            f"(got P0={P0.tolist()})"
+        )
+
+    if n > _MAX_OPTIONS:
+        if fallback == "simulation" and method == "propagate":
+            reason = f"no chain for {n} options (at most {_MAX_OPTIONS})"
+            logger.info("threshold_probabilities: %s; simulating", reason)
+            return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
+                                    partial(_simulated_result, theta=theta, max_steps=max_steps))
+        raise ValueError(
+            f"model has {n} options; the chain handles at most {_MAX_OPTIONS} (its state "
+            "space grows with every option); with fallback='simulation' and "
+            "method='propagate' (the defaults) the answer is simulated to the tolerances"
+        )
     if not model.sigma2 > 0.0:
         raise ValueError(
             f"the model has no noise (sigma2={model.sigma2:g}); the chain needs sigma2 > 0 "
@@ -397,13 +411,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             f"the contrast C must have columns summing to zero (largest column sum {col:.3g}); "
             "the method relies on valences that leave the summed preference unchanged"
         )
-    P0 = np.asarray(model.P0)
-    if np.any(P0 >= theta):
-        raise ValueError(
-            f"the initial preference P0 must lie below theta={theta:g} for every option "
-            f"(got P0={P0.tolist()})"
-        )
-
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0))

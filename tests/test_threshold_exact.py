@@ -587,10 +587,19 @@ def test_bad_resolution_tolerances_and_limits():
         threshold_probabilities(model, 5.0, method="exact")
 
 
-def test_too_many_options_points_to_simulation():
+def test_four_options_are_simulated_to_the_tolerances_or_refused_when_asked():
+    # no chain for four options: the default fallback simulates until three standard errors
+    # meet the tolerances, and an independent simulation agrees; without it, a clear error
     model = canonical([A, B, (2.0, 2.0), (0.5, 2.5)])
-    with pytest.raises(ValueError, match=r"4 options.*at most 3.*mdft.simulate"):
-        threshold_probabilities(model, 17.5)
+    res = threshold_probabilities(model, 6.0, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation" and res.probabilities.shape == (4,)
+    assert res.rt_pmf.shape == (10_000, 4)
+    assert res.error_probabilities <= 0.004 and res.error_mean_rt <= 0.01
+    assert_within_stated_error(res, model, 6.0, 200_000, 13)
+    with pytest.raises(ValueError, match=r"4 options; the chain handles at most 3.*fallback"):
+        threshold_probabilities(model, 6.0, fallback="raise")
+    with pytest.raises(ValueError, match=r"4 options; the chain handles at most 3"):
+        threshold_probabilities(model, 6.0, method="solve")
 
 
 def test_noise_free_model_points_to_simulation():
