@@ -383,7 +383,8 @@ class MDFTOrchestrator(Orchestrator):
     of Roe et al. 2001: exact first two moments of ``P(T)``, normal orthant
     probabilities); ``docs/orchestration.md`` reports its measured accuracy for
     orchestrator inputs. For threshold stopping by :func:`mdft.threshold_probabilities`
-    (lattice method), which handles at most three feasible actions; with more it raises.
+    (error-controlled chain), for states with at most three feasible actions; with more
+    it raises.
 
     With ``sq`` entries in ``[0, 1]`` the options are close together, so ``S`` is close
     to ``I - phi2 * ones`` and its spectral radius is about 1 (often 1 + 1e-5): over a
@@ -510,8 +511,8 @@ class MDFTOrchestrator(Orchestrator):
             if actions.size > 3:
                 raise ValueError(
                     f"action_probabilities with threshold stopping handles states with at most 3 "
-                    f"feasible actions (state {s} has {actions.size}); the lattice method "
-                    "(mdft.threshold_probabilities) grows too fast beyond that. Estimate the "
+                    f"feasible actions (state {s} has {actions.size}); mdft.threshold_probabilities "
+                    "has no chain beyond that (only a slow simulation). Estimate the "
                     "distribution from decide_many([state] * n) instead"
                 )
             res = mdft.threshold_probabilities(model, self.threshold, max_steps=self.n_steps)
