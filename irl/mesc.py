@@ -708,7 +708,9 @@ def mesc_irl(
     tol : float
         A fit converges when the largest component of the projected gradient
         of its objective is <= tol (expected feature visits per
-        demonstration). When L-BFGS-B stops by its relative reduction test
+        demonstration; the evidence selection's fits meet at most 0.1 / N,
+        N demonstrations, as it compares log-likelihoods summed over them).
+        When L-BFGS-B stops by its relative reduction test
         (``ftol``) or a failed line search above tol, it is restarted from
         its iterate (fresh memory, at most 3 times); a fit that still ends
         above tol is reported as not converged.
