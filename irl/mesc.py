@@ -678,7 +678,7 @@ def mesc_irl(
         whatever the evidence, and get evidence 0), zeta as for ``"evidence"``.
         ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
         the paper's map. ``"auto"`` (default): ``"none"`` with
-        ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,
+        ``optimizer="eg"``, ``l2 > 0`` or ``init``, ``"l1"`` when ``l1`` is given,
         otherwise ``"evidence"`` when one evaluation of the objective is
         small (at most 4e6 step-state-action-successor entries and 1,000
         features) and ``"l1"`` above.
@@ -693,9 +693,11 @@ def mesc_irl(
         half times the longest demonstration, rounded up).
     init : array_like of shape (n_features,) or MESCResult, optional
         Warm start of L-BFGS-B, e.g. penalties learned on another world with
-        the same feature layout (transfer). Default zeros. With
-        ``selection="evidence"`` the L1 path starts from zero and ``init``
-        is not used.
+        the same feature layout (transfer). Default zeros. Only the fits of
+        ``selection="none"`` and ``"l1"`` start from it (``"auto"`` takes
+        ``"none"`` when it is given); the evidence selection's L1 path starts
+        from zero and the paper's optimiser from ``eg_options["init"]``, so
+        ``init`` with either raises ValueError.
     max_penalty : float, optional
         Upper bound on every penalty (default none).
     l1 : float, optional
@@ -784,8 +786,11 @@ def mesc_irl(
         max_penalty = _as_real("max_penalty", max_penalty, low=0.0, low_open=True)
         w0 = np.minimum(w0, max_penalty)
     eg = _eg_options(eg_options)
+    if init is not None and optimizer == "eg":
+        raise ValueError("init is a start of L-BFGS-B; the paper's optimiser starts every penalty at "
+                         "eg_options['init'] (got init with optimizer='eg')")
     if selection == "auto":
-        if optimizer == "eg" or l2:
+        if optimizer == "eg" or l2 or init is not None:
             selection = "none"
         elif l1 is not None:
             selection = "l1"
@@ -798,6 +803,9 @@ def mesc_irl(
         raise ValueError(f"optimizer='eg' fits all penalties at once; use selection='none' (got {selection!r})")
     if selection == "evidence" and (l1 is not None or l2):
         raise ValueError("l1 and l2 apply to selection='l1' or 'none'; the evidence selection sets its own L1 path")
+    if selection == "evidence" and init is not None:
+        raise ValueError("init applies to selection='l1' or 'none'; the evidence selection's L1 path starts from zero "
+                         "(got init with selection='evidence')")
     if selection == "l1" and l2:
         raise ValueError(f"l2 applies to selection='none' (got l2={l2} with selection='l1')")
     cost = evidence_cost(obj.n_decisions, F)

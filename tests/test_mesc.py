@@ -174,6 +174,27 @@ def test_warm_start_transfer():
         mesc_irl(w2.nominal_mdp, d2, init=MESCResult.from_penalties(small_world().nominal_mdp, np.zeros(27)))
 
 
+def test_a_warm_start_is_used_or_refused():
+    # init used to be dropped without a word by the default call (the evidence selection starts
+    # its path from zero) and by the paper's optimiser: a "warm start" gave the cold result
+    w1 = GridWorld.random(6, rng=1, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4)
+    w2 = GridWorld.random(6, rng=2, n_blue=3, n_green=3, n_constrained_states=3, min_distance=4)
+    r1 = mesc_irl(w1.nominal_mdp, generate_demonstrations(w1.constrained_mdp, 50, rng=0))
+    d2 = generate_demonstrations(w2.constrained_mdp, 10, rng=0)
+    warm = mesc_irl(w2.nominal_mdp, d2, init=r1)
+    assert warm.selection == "none"
+    explicit = mesc_irl(w2.nominal_mdp, d2, init=r1, selection="none")
+    np.testing.assert_array_equal(warm.penalties, explicit.penalties)
+    cold = mesc_irl(w2.nominal_mdp, d2, selection="none")
+    # the start matters where the demonstrations leave penalties free (features they never approach)
+    assert not np.allclose(warm.penalties, cold.penalties, atol=1e-2)
+    assert warm.objective == pytest.approx(cold.objective, abs=0.05)  # both maximise L (to the slack tol leaves)
+    with pytest.raises(ValueError, match="init applies to selection='l1' or 'none'"):
+        mesc_irl(w2.nominal_mdp, d2, init=r1, selection="evidence")
+    with pytest.raises(ValueError, match="paper's optimiser starts every penalty at eg_options"):
+        mesc_irl(w2.nominal_mdp, d2, init=r1, optimizer="eg")
+
+
 def test_bounds_and_ridge():
     world = small_world()
     demos = generate_demonstrations(world.constrained_mdp, 30, rng=0)
