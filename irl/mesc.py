@@ -43,7 +43,7 @@ import scipy.sparse as sp
 
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
-from .mdp import MDP, _as_float, _as_int, _as_real, successor_patterns
+from .mdp import MDP, _as_float, _as_int, _as_real, _check_size, successor_patterns
 from ._repr import compact_repr, iterations
 from .mesc_selection import evidence_cost
 
@@ -191,6 +191,9 @@ class MESCObjective:
             raise TypeError(f"nominal must be an irl.MDP (got {type(nominal).__name__})")
         if nominal.features is None:
             raise ValueError("nominal must have features (got features=None); MESC-IRL learns one penalty per feature")
+        if nominal.features.n_features == 0:
+            raise ValueError("nominal must have at least one feature (got features with n_features=0); "
+                             "MESC-IRL learns one penalty per feature")
         if not isinstance(demonstrations, Demonstrations):
             raise TypeError(f"demonstrations must be an irl.Demonstrations (got {type(demonstrations).__name__})")
         slots = demonstrations.check(nominal)
@@ -198,6 +201,8 @@ class MESCObjective:
             longest = int(demonstrations.lengths.max())
             horizon = longest + (longest + 1) // 2
         self.horizon = H = _as_int("horizon", horizon)
+        _check_size(f"horizon={H} x {nominal.n_states} states x {nominal.n_actions} actions (the policy buffer)",
+                    H * nominal.n_states * nominal.n_actions)
         self.nominal = nominal
         self.features = nominal.features
         self.n_demonstrations = n = len(demonstrations)

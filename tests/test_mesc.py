@@ -195,6 +195,32 @@ def test_a_warm_start_is_used_or_refused():
         mesc_irl(w2.nominal_mdp, d2, init=r1, optimizer="eg")
 
 
+def test_demonstration_subsets_by_mask_or_integers_only():
+    d = Demonstrations.from_sequences([[0, 1], [1, 2], [2, 0]], [[0], [0], [1]])
+    # a boolean mask selects where it is True (it used to be read as the indices 1, 0, 1)
+    picked = d.subset(np.array([True, False, True]))
+    assert [picked.trajectory(i) for i in range(len(picked))] == [d.trajectory(0), d.trajectory(2)]
+    assert d.subset([-1]).trajectory(0) == d.trajectory(2)
+    with pytest.raises(ValueError, match=r"boolean indices mask must have one entry per trajectory \(3\)"):
+        d.subset(np.array([True, False]))
+    with pytest.raises(TypeError, match="indices must be integers or a boolean mask"):
+        d.subset([0.0, 1.7])
+    with pytest.raises(ValueError, match=r"indices must lie in \[-3, 3\)"):
+        d.subset([3])
+
+
+def test_objective_refuses_no_features_and_an_oversized_horizon():
+    world = small_world()
+    demos = generate_demonstrations(world.constrained_mdp, 5, rng=0)
+    empty = world.nominal_mdp.replace(features=TransitionFeatures(destination=np.zeros((16, 0)), n_actions=8))
+    for kw in ({}, {"optimizer": "eg"}, {"selection": "l1"}):
+        with pytest.raises(ValueError, match="nominal must have at least one feature"):
+            mesc_irl(empty, demos, **kw)
+    # the (H, S, A) policy buffer is checked before it is allocated (it used to be a MemoryError)
+    with pytest.raises(ValueError, match=r"horizon=1000000000 x 16 states x 8 actions \(the policy buffer\)"):
+        MESCObjective(world.nominal_mdp, demos, horizon=10**9)
+
+
 def test_bounds_and_ridge():
     world = small_world()
     demos = generate_demonstrations(world.constrained_mdp, 30, rng=0)
