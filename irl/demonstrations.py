@@ -356,6 +356,12 @@ def generate_demonstrations(mdp: MDP, n: int, *, rng: SeedLike = None, horizon: 
     -------
     Demonstrations
 
+    Raises
+    ------
+    ValueError
+        If the stationary soft value iteration does not converge (its
+        policy would not be the soft policy of ``mdp``).
+
     Examples
     --------
     >>> from irl import GridWorld
@@ -364,5 +370,15 @@ def generate_demonstrations(mdp: MDP, n: int, *, rng: SeedLike = None, horizon: 
     >>> len(demos), int(demos.start_states[0]) == world.start
     (10, True)
     """
-    soft = soft_value_iteration(mdp, horizon=horizon, max_iter=max_iter, tol=tol)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # replaced by the error below
+        soft = soft_value_iteration(mdp, horizon=horizon, max_iter=max_iter, tol=tol)
+    if not soft.converged:
+        raise ValueError(
+            f"the soft value iteration of mdp did not converge in max_iter={max_iter} iterations (tol={tol:g}), "
+            "so its soft policy is not known; with discount 1 the soft values are infinite where, for example, a "
+            "policy can stay away from the terminal states at a reward per step above "
+            f"-log(n_actions) = {-np.log(mdp.n_actions):.3g} (the entropy of a uniform choice outweighs the "
+            "cost). Use a discount < 1, a finite horizon=, or a larger max_iter"
+        )
     return sample_trajectories(mdp, soft.policy, n, rng=rng, max_steps=max_steps)

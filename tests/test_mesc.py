@@ -209,6 +209,24 @@ def test_demonstration_subsets_by_mask_or_integers_only():
         d.subset([3])
 
 
+def test_demonstrations_of_a_soft_policy_that_does_not_exist_are_refused():
+    # with discount 1 and a step cost of 1 < log 8, wandering forever has infinite soft value: the
+    # stationary soft iteration diverges (V grows by about log 8 - 1 per sweep). The demonstrations
+    # used to come from the unconverged policy with only a warning (1000-step trajectories).
+    world = GridWorld(5, 0, 24, step_cost=1.0, p_slip=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        v100 = soft_value_iteration(world.nominal_mdp, max_iter=100).values.max()
+        v200 = soft_value_iteration(world.nominal_mdp, max_iter=200).values.max()
+    assert v200 - v100 > 50  # diverging, the premise of the test
+    with pytest.raises(ValueError, match=r"soft value iteration of mdp did not converge in max_iter=10000"):
+        generate_demonstrations(world.nominal_mdp, 5, rng=0)
+    # a discount below 1 or a finite horizon makes the soft policy exist again
+    assert len(generate_demonstrations(world.replace(discount=0.9).nominal_mdp, 5, rng=0)) == 5
+    assert len(generate_demonstrations(world.nominal_mdp, 5, rng=0, horizon=30)) == 5
+    assert len(generate_demonstrations(GridWorld(5, 0, 24, p_slip=0.0).nominal_mdp, 5, rng=0)) == 5
+
+
 def test_objective_refuses_no_features_and_an_oversized_horizon():
     world = small_world()
     demos = generate_demonstrations(world.constrained_mdp, 5, rng=0)
