@@ -715,8 +715,8 @@ def mesc_irl(
     tol : float
         A fit converges when the largest component of the projected gradient
         of its objective is <= tol (expected feature visits per
-        demonstration; the evidence selection's fits meet at most 0.1 / N,
-        N demonstrations, as it compares log-likelihoods summed over them).
+        demonstration; the evidence selection's fits meet ``min(tol, 0.1 / N)``
+        for N demonstrations, as it compares log-likelihoods summed over them).
         When L-BFGS-B stops by its relative reduction test
         (``ftol``) or a failed line search above tol, it is restarted from
         its iterate (fresh memory, at most 3 times); a fit that still ends

@@ -59,8 +59,8 @@ N. Capping the gradient of ``N L`` at ``TOTAL_TOL`` (0.1) nats per unit
 penalty keeps that shortfall in proportion to ``cost`` whatever N; with the
 default ``tol`` (1e-3) the cap binds above 100 demonstrations. Without it, refits
 that met the screening tolerance after no iteration dropped true constraints
-and kept proxies of them, and under-fitted refits overstated evidence
-(docs/irl.md, section 4).
+and kept proxies of them, and evidence measured between under-fitted refits
+was off in either direction (docs/irl.md, section 4.1).
 
 ``cost`` is ``max(log(n) / 2, log(F))`` nats per feature (n demonstrated
 decisions, F candidate features): the larger of the Bayesian information
