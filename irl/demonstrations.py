@@ -147,7 +147,8 @@ class Demonstrations:
         return self.states[a:b].tolist() + [int(self.next_states[b - 1])], self.actions[a:b].tolist()
 
     def subset(self, indices: ArrayLike) -> "Demonstrations":
-        """The trajectories at ``indices`` (in that order).
+        """The trajectories at ``indices`` (in that order; negative indices count from the end),
+        or those where a boolean mask of one entry per trajectory is True.
 
         Examples
         --------
@@ -155,11 +156,19 @@ class Demonstrations:
         >>> d.subset([2, 0]).trajectory(0)
         ([2, 0], [1])
         """
-        idx = np.asarray(indices, dtype=np.int64).ravel()
+        raw = np.asarray(indices)
+        if raw.dtype == np.bool_:  # a mask, as in numpy indexing (not 0/1 indices)
+            if raw.shape != (len(self),):
+                raise ValueError(f"a boolean indices mask must have one entry per trajectory ({len(self)}) "
+                                 f"(got shape {raw.shape})")
+            raw = np.flatnonzero(raw)
+        elif raw.size and not np.issubdtype(raw.dtype, np.integer):
+            raise TypeError(f"indices must be integers or a boolean mask (got dtype {raw.dtype})")
+        idx = raw.astype(np.int64).ravel()
         if idx.size == 0:
             raise ValueError("indices must select at least one trajectory (got none)")
         if idx.min() < -len(self) or idx.max() >= len(self):
-            raise ValueError(f"indices must lie in [0, {len(self)}) (got {idx.min()} .. {idx.max()})")
+            raise ValueError(f"indices must lie in [-{len(self)}, {len(self)}) (got {idx.min()} .. {idx.max()})")
         idx = idx % len(self)
         parts = [np.arange(self.offsets[i], self.offsets[i + 1]) for i in idx]
         take = np.concatenate(parts)
@@ -347,6 +356,12 @@ def generate_demonstrations(mdp: MDP, n: int, *, rng: SeedLike = None, horizon: 
     -------
     Demonstrations
 
+    Raises
+    ------
+    ValueError
+        If the stationary soft value iteration does not converge (its
+        policy would not be the soft policy of ``mdp``).
+
     Examples
     --------
     >>> from irl import GridWorld
@@ -355,5 +370,15 @@ def generate_demonstrations(mdp: MDP, n: int, *, rng: SeedLike = None, horizon: 
     >>> len(demos), int(demos.start_states[0]) == world.start
     (10, True)
     """
-    soft = soft_value_iteration(mdp, horizon=horizon, max_iter=max_iter, tol=tol)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # replaced by the error below
+        soft = soft_value_iteration(mdp, horizon=horizon, max_iter=max_iter, tol=tol)
+    if not soft.converged:
+        raise ValueError(
+            f"the soft value iteration of mdp did not converge in max_iter={max_iter} iterations (tol={tol:g}), "
+            "so its soft policy is not known; with discount 1 the soft values are infinite where, for example, a "
+            "policy can stay away from the terminal states at a reward per step above "
+            f"-log(n_actions) = {-np.log(mdp.n_actions):.3g} (the entropy of a uniform choice outweighs the "
+            "cost). Use a discount < 1, a finite horizon=, or a larger max_iter"
+        )
     return sample_trajectories(mdp, soft.policy, n, rng=rng, max_steps=max_steps)

@@ -383,6 +383,9 @@ class GridWorld:
         if sum(counts) + 2 > n:
             raise ValueError(f"a {size} x {size} grid has {n} cells, too few for {sum(counts)} special cells plus start and goal")
         min_distance = _as_real("min_distance", min_distance, low=0.0)
+        if min_distance > math.hypot(size - 1, size - 1):
+            raise ValueError(f"min_distance must be at most the diagonal of a {size} x {size} grid, "
+                             f"{math.hypot(size - 1, size - 1):.4g} cells (got {min_distance:g})")
         max_tries = _as_int("max_tries", max_tries)
         xy = np.stack([np.arange(n) % size, np.arange(n) // size], 1)
         for _ in range(max_tries):

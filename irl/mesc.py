@@ -43,7 +43,7 @@ import scipy.sparse as sp
 
 from . import _kernels, mesc_selection, mesc_solvers
 from .demonstrations import Demonstrations
-from .mdp import MDP, _as_float, _as_int, _as_real, successor_patterns
+from .mdp import MDP, _as_float, _as_int, _as_real, _check_size, successor_patterns
 from ._repr import compact_repr, iterations
 from .mesc_selection import evidence_cost
 
@@ -191,6 +191,9 @@ class MESCObjective:
             raise TypeError(f"nominal must be an irl.MDP (got {type(nominal).__name__})")
         if nominal.features is None:
             raise ValueError("nominal must have features (got features=None); MESC-IRL learns one penalty per feature")
+        if nominal.features.n_features == 0:
+            raise ValueError("nominal must have at least one feature (got features with n_features=0); "
+                             "MESC-IRL learns one penalty per feature")
         if not isinstance(demonstrations, Demonstrations):
             raise TypeError(f"demonstrations must be an irl.Demonstrations (got {type(demonstrations).__name__})")
         slots = demonstrations.check(nominal)
@@ -198,6 +201,8 @@ class MESCObjective:
             longest = int(demonstrations.lengths.max())
             horizon = longest + (longest + 1) // 2
         self.horizon = H = _as_int("horizon", horizon)
+        _check_size(f"horizon={H} x {nominal.n_states} states x {nominal.n_actions} actions (the policy buffer)",
+                    H * nominal.n_states * nominal.n_actions)
         self.nominal = nominal
         self.features = nominal.features
         self.n_demonstrations = n = len(demonstrations)
@@ -678,7 +683,7 @@ def mesc_irl(
         whatever the evidence, and get evidence 0), zeta as for ``"evidence"``.
         ``"none"``: maximise ``L`` (minus ``l1`` and ``l2`` terms if given);
         the paper's map. ``"auto"`` (default): ``"none"`` with
-        ``optimizer="eg"`` or ``l2 > 0``, ``"l1"`` when ``l1`` is given,
+        ``optimizer="eg"``, ``l2 > 0`` or ``init``, ``"l1"`` when ``l1`` is given,
         otherwise ``"evidence"`` when one evaluation of the objective is
         small (at most 4e6 step-state-action-successor entries and 1,000
         features) and ``"l1"`` above.
@@ -693,9 +698,11 @@ def mesc_irl(
         half times the longest demonstration, rounded up).
     init : array_like of shape (n_features,) or MESCResult, optional
         Warm start of L-BFGS-B, e.g. penalties learned on another world with
-        the same feature layout (transfer). Default zeros. With
-        ``selection="evidence"`` the L1 path starts from zero and ``init``
-        is not used.
+        the same feature layout (transfer). Default zeros. Only the fits of
+        ``selection="none"`` and ``"l1"`` start from it (``"auto"`` takes
+        ``"none"`` when it is given); the evidence selection's L1 path starts
+        from zero and the paper's optimiser from ``eg_options["init"]``, so
+        ``init`` with either raises ValueError.
     max_penalty : float, optional
         Upper bound on every penalty (default none).
     l1 : float, optional
@@ -708,7 +715,9 @@ def mesc_irl(
     tol : float
         A fit converges when the largest component of the projected gradient
         of its objective is <= tol (expected feature visits per
-        demonstration). When L-BFGS-B stops by its relative reduction test
+        demonstration; the evidence selection's fits meet ``min(tol, 0.1 / N)``
+        for N demonstrations, as it compares log-likelihoods summed over them).
+        When L-BFGS-B stops by its relative reduction test
         (``ftol``) or a failed line search above tol, it is restarted from
         its iterate (fresh memory, at most 3 times); a fit that still ends
         above tol is reported as not converged.
@@ -782,8 +791,11 @@ def mesc_irl(
         max_penalty = _as_real("max_penalty", max_penalty, low=0.0, low_open=True)
         w0 = np.minimum(w0, max_penalty)
     eg = _eg_options(eg_options)
+    if init is not None and optimizer == "eg":
+        raise ValueError("init is a start of L-BFGS-B; the paper's optimiser starts every penalty at "
+                         "eg_options['init'] (got init with optimizer='eg')")
     if selection == "auto":
-        if optimizer == "eg" or l2:
+        if optimizer == "eg" or l2 or init is not None:
             selection = "none"
         elif l1 is not None:
             selection = "l1"
@@ -796,6 +808,9 @@ def mesc_irl(
         raise ValueError(f"optimizer='eg' fits all penalties at once; use selection='none' (got {selection!r})")
     if selection == "evidence" and (l1 is not None or l2):
         raise ValueError("l1 and l2 apply to selection='l1' or 'none'; the evidence selection sets its own L1 path")
+    if selection == "evidence" and init is not None:
+        raise ValueError("init applies to selection='l1' or 'none'; the evidence selection's L1 path starts from zero "
+                         "(got init with selection='evidence')")
     if selection == "l1" and l2:
         raise ValueError(f"l2 applies to selection='none' (got l2={l2} with selection='l1')")
     cost = evidence_cost(obj.n_decisions, F)

@@ -50,6 +50,18 @@ module selects the constraints the demonstrations give evidence for:
    the probability that a penalty of that size is a constraint rather than a
    mild preference. A feature outside the selected model has no evidence.
 
+**Tolerances.** The fits above meet ``min(tol, TOTAL_TOL / N)`` (the
+screening ones ``SCREEN_FACTOR`` (30) times it): ``tol`` bounds the projected
+gradient of the mean log-likelihood per demonstration, but every decision
+compares ``N L`` (nats summed over the demonstrations) with ``cost``, and a
+fit's shortfall in ``N L`` at a fixed gradient per demonstration grows with
+N. Capping the gradient of ``N L`` at ``TOTAL_TOL`` (0.1) nats per unit
+penalty keeps that shortfall in proportion to ``cost`` whatever N; with the
+default ``tol`` (1e-3) the cap binds above 100 demonstrations. Without it, refits
+that met the screening tolerance after no iteration dropped true constraints
+and kept proxies of them, and evidence measured between under-fitted refits
+was off in either direction (docs/irl.md, section 4.1).
+
 ``cost`` is ``max(log(n) / 2, log(F))`` nats per feature (n demonstrated
 decisions, F candidate features): the larger of the Bayesian information
 criterion's cost and that of the risk inflation criterion (Foster & George
@@ -72,6 +84,11 @@ HELD_GROWTH = 4.0
 # a refit without a feature stops at FAR_TOL times its tolerance while the loss is FAR_LOSS * cost or more
 FAR_LOSS = 100.0
 FAR_TOL = 3.0
+# the selection compares log-likelihoods summed over the N demonstrations with ``cost`` (nats), so the
+# tolerance of its fits is capped in those units: a projected gradient of N L of at most TOTAL_TOL nats
+# per unit penalty (tol <= TOTAL_TOL / N; module docstring, "Tolerances")
+TOTAL_TOL = 0.1
+SCREEN_FACTOR = 30.0  # the screening fits (L1 path, refits of the elimination) stop at this times the tolerance
 
 
 def evidence_cost(n_decisions, n_features):
@@ -185,6 +202,8 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
     """Run the L1 path, the relaxed refits and the backward elimination (module docstring)."""
     F = obj.n_features
     N = obj.n_demonstrations
+    opts = dict(opts, tol=min(opts["tol"], TOTAL_TOL / N))
+    path_opts = dict(opts, tol=SCREEN_FACTOR * opts["tol"])
     zeros = np.zeros(F)
     value0, grad0 = obj._evaluate(zeros)
     lam_max = float(grad0.max()) if F else 0.0
@@ -198,7 +217,6 @@ def select(obj, *, cost, n_lambda=8, patience=1, opts):
         w = zeros
         seen = set()
         since_best = 0
-        path_opts = dict(opts, tol=30.0 * opts["tol"])
         for lam in path_strengths(lam_max, cost / N, n_lambda):
             l1_fit = mesc_solvers.lbfgsb(obj, w, l1=float(lam), **path_opts)
             ran.append(l1_fit)

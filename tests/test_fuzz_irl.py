@@ -95,7 +95,7 @@ def test_gridworld(name, value):
                              "max_tries", "rng"]), value=counts)
 def test_random_gridworld(name, value):
     run(lambda: GridWorld.random(4, **{name: value}), name, "too few", "seed", "no layout",
-        "Generator", "SeedSequence", "expected")
+        "Generator", "SeedSequence", "expected", "diagonal")
 
 
 @FUZZ

@@ -108,7 +108,11 @@ def test_random_gives_up_cleanly():
     with pytest.raises(ValueError, match="too few for"):
         GridWorld.random(3, n_blue=6)
     with pytest.raises(ValueError, match="no layout with a constraint-free path"):
+        GridWorld.random(3, n_blue=0, n_green=0, n_constrained_states=7, min_distance=2.8, max_tries=3)
+    # a distance no two cells have is refused at once, naming it (it used to blame the special cells)
+    with pytest.raises(ValueError, match=r"min_distance must be at most the diagonal of a 3 x 3 grid, 2.828 cells \(got 10\)"):
         GridWorld.random(3, n_blue=0, n_green=0, n_constrained_states=0, min_distance=10, max_tries=3)
+    assert GridWorld.random(3, n_blue=0, n_green=0, n_constrained_states=0, min_distance=2 * 2**0.5).size == 3
 
 
 def test_paper_worlds_load(shared_data):
