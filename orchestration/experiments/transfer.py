@@ -15,9 +15,13 @@ those features can be carried between worlds. Here, for each repeat:
 
   * ``transfer only``: B's nominal reward minus the transferred penalties, no
     demonstration of B;
-  * ``warm start``: MESC-IRL on ``n`` demonstrations of B started from the
-    transferred penalties (:func:`irl.mesc_irl` with ``init=``);
-  * ``from scratch``: MESC-IRL on the same ``n`` demonstrations from zero;
+  * ``from scratch``: MESC-IRL's default call (evidence selection) on ``n``
+    demonstrations of B;
+  * ``plain ML``: maximum likelihood (``selection="none"``) on the same
+    demonstrations, started from zero;
+  * ``warm start``: the same maximum likelihood started from the transferred
+    penalties (``init=``; the evidence selection's path always starts from
+    zero, so a warm start needs the plain fit);
   * ``nominal``: B's nominal reward (nothing learned).
 
 Metrics on B: the soft false negatives and positives
@@ -36,7 +40,7 @@ from ._stats import soft_trajectories
 from .base import Experiment, Report
 from .runner import Unit, child_seed
 
-METHODS = ("nominal", "transfer only", "from scratch", "warm start")
+METHODS = ("nominal", "transfer only", "from scratch", "plain ML", "warm start")
 
 
 def settings(quick: bool) -> dict:
@@ -92,7 +96,8 @@ def work(params: dict, seed) -> dict:
         "nominal": irl.MESCResult.from_penalties(nominal, np.zeros(target.n_features)),
         "transfer only": irl.MESCResult.from_penalties(nominal, transferred),
         "from scratch": irl.mesc_irl(nominal, demos),
-        "warm start": irl.mesc_irl(nominal, demos, init=transferred),
+        "plain ML": irl.mesc_irl(nominal, demos, selection="none"),
+        "warm start": irl.mesc_irl(nominal, demos, selection="none", init=transferred),
     }
     zeta_true = irl.MESCResult.from_penalties(nominal, target.true_penalties).zeta
     rng = np.random.default_rng(child_seed(seed, 4, params["n"]))
