@@ -29,8 +29,8 @@ import scipy.sparse.linalg as spla
 from . import _lattice
 from ._lattice_chain import build_chain
 from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
-from ._plane_chain import (TooManyStates, build_moment_chain, propagate_moments,
-                           reference_sums, solve_moments)
+from ._plane_chain import (TooManyStates, build_moment_chain, plane_geometry,
+                           propagate_moments, reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -415,7 +415,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     coarse = fine = None
     tails = [(0.0, 0.0)]
     refinements = 0
-    reason = ""
+    reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
+    if reason:
+        # no pass can be trusted: refuse (or simulate) before building any chain
+        runs = []
     for compute in runs:
         try:
             result = compute()
@@ -500,6 +503,27 @@ def _step_sd_binary(model):
     mean = float(drift @ w)
     att = float(((drift - mean) ** 2) @ w)
     return math.sqrt(noise + att)
+
+
+def _narrow_everywhere(model, theta, kappa):
+    """Why no three-option pass can be trusted, or "" when the finest one may be.
+
+    A pass is not trusted where the noise is narrower than its cells over ``sqrt(3)``
+    (``MomentChain.narrow``). The cells shrink in proportion to the resolution and the
+    noise does not, so a grid that is narrow at the finest resolution of the schedule is
+    narrow at every one: the chain could only build ever larger chains and refuse.
+    """
+    finest = kappa / _REFINE**_MAX_REFINEMENTS
+    g = plane_geometry(model, theta, finest)
+    cells = np.array([g["h1"], g["h2"]])
+    narrow = np.flatnonzero(g["sd_exact"] < cells / math.sqrt(3.0))
+    if narrow.size == 0:
+        return ""
+    k = int(narrow[0])
+    return (f"the noise (per-step sd {float(g['sd_exact'][k]):.3g} along a grid axis) is "
+            f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
+            f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
+            "not trusted")
 
 
 def _binary_runs(model, theta, n_cells, max_states, solve):
