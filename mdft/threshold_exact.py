@@ -310,7 +310,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         Bad arguments; a model with more than three options or without noise
         (use :func:`mdft.simulate`); a contrast whose columns do not sum to
         zero; an initial preference at or above ``theta``; a feedback matrix
-        under which the summed preference is not bounded; a model for which
+        under which the summed preference is not bounded, or is unstable (equal
+        column sums of magnitude above 1, as with ``phi2 > 2 / n_options`` and
+        ``phi1 = 0``); a model for which
         the estimated error cannot be brought below the tolerances within
         ``max_states`` states and the fallback is off or over its budget.
 
@@ -402,6 +404,17 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         raise ValueError(
             f"the initial preference P0 must lie below theta={theta:g} for every option "
             f"(got P0={P0.tolist()})"
+        )
+
+    sums = np.asarray(model.S).sum(axis=0)
+    if np.ptp(sums) <= 1e-12 and abs(sums[0]) > 1.0 + 1e-12:
+        # S multiplies the summed preference by sums[0] at every step: it stays at 0 only
+        # in exact arithmetic, and any rounding grows geometrically (as in mdft.simulate)
+        raise ValueError(
+            f"the feedback matrix S multiplies the summed preference 1^T P by {sums[0]:.6g} at "
+            "every step (equal column sums of magnitude above 1), so it is unstable: it stays "
+            "bounded only in exact arithmetic and any rounding grows without bound; lower "
+            "phi2, or use mdft.simulate for this model"
         )
 
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,

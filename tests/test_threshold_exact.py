@@ -373,6 +373,21 @@ def test_noise_narrower_than_the_cells_at_every_resolution_refuses_without_build
             threshold_probabilities(model, 10.0, method=method, fallback="raise")
 
 
+@pytest.mark.parametrize("options, phi2", [(SETS["compromise"], 2.5), (SETS["compromise"], 1.0),
+                                           ([A, B], 2.5)])
+def test_unstable_summed_preference_is_refused(options, phi2):
+    # phi1 = 0: S = I - phi2 * ones, which multiplies the summed preference by
+    # 1 - n phi2 at every step. From P0 = 0 the sum stays 0 only in exact arithmetic;
+    # mdft.simulate's rounding grows by |1 - n phi2| per step and drives its choices
+    # (three options, phi2 = 1: p about [0.38, 0.38, 0.24] against the chain's
+    # [0.42, 0.42, 0.17]), and with phi2 = 2.5 the chain refined for minutes.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel(options, [0.5, 0.5], phi1=0.0, phi2=phi2, beta=1.0)
+    with pytest.raises(ValueError, match=r"multiplies the summed preference 1\^T P by -?\d"):
+        threshold_probabilities(model, 20.0)
+
+
 def test_bad_fallback_is_a_clear_error():
     model = canonical(SETS["compromise"])
     with pytest.raises(ValueError, match=r"fallback must be one of \('simulation', 'raise'\) "
