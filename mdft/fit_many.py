@@ -181,18 +181,24 @@ def _fingerprint(kwargs, seed):
     return hashlib.sha256(blob).hexdigest()
 
 
-def _save(path, payload):
-    """Write ``payload`` to ``path`` atomically (a temporary file renamed over it)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".pkl")
+def _write_atomic(path, mode, write):
+    """Call ``write(fh)`` on a temporary file beside ``path``, then rename it over ``path``."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        with os.fdopen(fd, mode) as fh:
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _save(path, payload):
+    """Write ``payload`` to ``path`` atomically (a temporary file renamed over it)."""
+    _write_atomic(path, "wb",
+                  lambda fh: pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def _load(path, fingerprint):
@@ -219,16 +225,7 @@ def _root_entropy(folder):
                              f"{text[:40]!r}); delete it or use a new checkpoint folder")
         return int(text)
     entropy = int(np.random.SeedSequence().entropy)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".txt")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(f"{entropy}\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    _write_atomic(path, "w", lambda fh: fh.write(f"{entropy}\n"))
     return entropy
 
 
