@@ -31,6 +31,8 @@ __all__ = ["FitManyResult", "fit_many"]
 logger = logging.getLogger(__name__)
 
 _CHECKPOINT_VERSION = 1
+#: Where a checkpoint folder keeps the root entropy of a run with ``rng=None``.
+_ENTROPY_FILE = "root-entropy.txt"
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,18 +181,24 @@ def _fingerprint(kwargs, seed):
     return hashlib.sha256(blob).hexdigest()
 
 
-def _save(path, payload):
-    """Write ``payload`` to ``path`` atomically (a temporary file renamed over it)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".pkl")
+def _write_atomic(path, mode, write):
+    """Call ``write(fh)`` on a temporary file beside ``path``, then rename it over ``path``."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        with os.fdopen(fd, mode) as fh:
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _save(path, payload):
+    """Write ``payload`` to ``path`` atomically (a temporary file renamed over it)."""
+    _write_atomic(path, "wb",
+                  lambda fh: pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def _load(path, fingerprint):
@@ -205,6 +213,20 @@ def _load(path, fingerprint):
             "use a new checkpoint folder or delete the stale one"
         )
     return payload["result"]
+
+
+def _root_entropy(folder):
+    """The root entropy of ``rng=None`` runs in ``folder``: read back, or drawn and saved."""
+    path = folder / _ENTROPY_FILE
+    if path.exists():
+        text = path.read_text().strip()
+        if not text.isdigit():
+            raise ValueError(f"checkpoint file {path} does not hold a root entropy (got "
+                             f"{text[:40]!r}); delete it or use a new checkpoint folder")
+        return int(text)
+    entropy = int(np.random.SeedSequence().entropy)
+    _write_atomic(path, "w", lambda fh: fh.write(f"{entropy}\n"))
+    return entropy
 
 
 # ---------------------------------------------------------------- fit_many
@@ -293,7 +315,9 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         made from a different problem, settings or seed raises ``ValueError``.
     rng : None, int or numpy.random.SeedSequence
         Root of the per-problem seeds (problem ``i`` uses the ``i``-th spawned child); the
-        same ``rng`` gives the same fits whatever the executor.
+        same ``rng`` gives the same fits whatever the executor. None draws fresh entropy;
+        with ``checkpoint`` it is kept in the folder (``root-entropy.txt``), so that a
+        re-run with ``rng=None`` resumes.
     on_error : {"raise", "store"}, default "raise"
         What to do when a fit raises: re-raise it (after saving the fits that finished), or
         record it in :attr:`FitManyResult.errors` and go on.
@@ -325,16 +349,21 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         n_workers = as_count("n_workers", n_workers)
     if not (isinstance(progress, bool) or callable(progress)):
         raise TypeError(f"progress must be True, False or a callable (got {progress!r})")
-    root = rng if isinstance(rng, np.random.SeedSequence) else np.random.SeedSequence(
-        None if rng is None else int(np.random.default_rng(rng).integers(2**63)))
-    seeds = tuple(int(c.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
-                  for c in root.spawn(len(items)))
     folder = None
     if checkpoint is not None:
         folder = Path(checkpoint)
         if folder.exists() and not folder.is_dir():
             raise ValueError(f"checkpoint must be a folder (got the file {folder})")
         folder.mkdir(parents=True, exist_ok=True)
+    if isinstance(rng, np.random.SeedSequence):
+        root = rng
+    elif rng is None:
+        # fresh entropy, kept in the checkpoint folder so that a re-run resumes
+        root = np.random.SeedSequence(None if folder is None else _root_entropy(folder))
+    else:
+        root = np.random.SeedSequence(int(np.random.default_rng(rng).integers(2**63)))
+    seeds = tuple(int(c.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+                  for c in root.spawn(len(items)))
 
     n = len(items)
     results = [None] * n

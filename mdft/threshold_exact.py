@@ -29,8 +29,8 @@ import scipy.sparse.linalg as spla
 from . import _lattice
 from ._lattice_chain import build_chain
 from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
-from ._plane_chain import (TooManyStates, build_moment_chain, propagate_moments,
-                           reference_sums, solve_moments)
+from ._plane_chain import (TooManyStates, build_moment_chain, plane_geometry,
+                           propagate_moments, reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -313,7 +313,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         fallback simulates it) or, for the chain, without noise
         (use :func:`mdft.simulate`); a contrast whose columns do not sum to
         zero; an initial preference at or above ``theta``; a feedback matrix
-        under which the summed preference is not bounded; a model for which
+        under which the summed preference is not bounded, or is unstable (equal
+        column sums of magnitude above 1, as with ``phi2 > 2 / n_options`` and
+        ``phi1 = 0``); a model for which
         the estimated error cannot be brought below the tolerances within
         ``max_states`` states and the fallback is off or over its budget.
 
@@ -386,6 +388,16 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             f"the initial preference P0 must lie below theta={theta:g} for every option "
             f"(got P0={P0.tolist()})"
         )
+    sums = np.asarray(model.S).sum(axis=0)
+    if np.ptp(sums) <= 1e-12 and abs(sums[0]) > 1.0 + 1e-12:
+        # S multiplies the summed preference by sums[0] at every step: it stays at 0 only
+        # in exact arithmetic, and any rounding grows geometrically (as in mdft.simulate)
+        raise ValueError(
+            f"the feedback matrix S multiplies the summed preference 1^T P by {sums[0]:.6g} at "
+            "every step (equal column sums of magnitude above 1), so it is unstable: it stays "
+            "bounded only in exact arithmetic and any rounding grows without bound; lower "
+            "phi2, or use mdft.simulate for this model"
+        )
 
     if n > _MAX_OPTIONS:
         if fallback == "simulation" and method == "propagate":
@@ -422,7 +434,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     coarse = fine = None
     tails = [(0.0, 0.0)]
     refinements = 0
-    reason = ""
+    reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
+    if reason:
+        # no pass can be trusted: refuse (or simulate) before building any chain
+        runs = []
     for compute in runs:
         try:
             result = compute()
@@ -507,6 +522,27 @@ def _step_sd_binary(model):
     mean = float(drift @ w)
     att = float(((drift - mean) ** 2) @ w)
     return math.sqrt(noise + att)
+
+
+def _narrow_everywhere(model, theta, kappa):
+    """Why no three-option pass can be trusted, or "" when the finest one may be.
+
+    A pass is not trusted where the noise is narrower than its cells over ``sqrt(3)``
+    (``MomentChain.narrow``). The cells shrink in proportion to the resolution and the
+    noise does not, so a grid that is narrow at the finest resolution of the schedule is
+    narrow at every one: the chain could only build ever larger chains and refuse.
+    """
+    finest = kappa / _REFINE**_MAX_REFINEMENTS
+    g = plane_geometry(model, theta, finest)
+    cells = np.array([g["h1"], g["h2"]])
+    narrow = np.flatnonzero(g["sd_exact"] < cells / math.sqrt(3.0))
+    if narrow.size == 0:
+        return ""
+    k = int(narrow[0])
+    return (f"the noise (per-step sd {float(g['sd_exact'][k]):.3g} along a grid axis) is "
+            f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
+            f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
+            "not trusted")
 
 
 def _binary_runs(model, theta, n_cells, max_states, solve):

@@ -89,6 +89,21 @@ def test_checkpoint_resumes_without_refitting(tmp_path, serial):
         mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
 
 
+def test_checkpoint_resumes_with_the_default_rng(tmp_path):
+    # rng=None drew fresh seeds on every call, so the fingerprints of a re-run never matched
+    # and an interrupted run with the default rng could not resume (ValueError)
+    folder = tmp_path / "fits"
+    problems = make_problems(2)
+    first = mdft.fit_many(problems, executor="serial", checkpoint=folder, **COMMON)
+    (folder / "fit-000001.pkl").unlink()  # as if interrupted before the second fit ended
+    again = mdft.fit_many(problems, executor="serial", checkpoint=folder, **COMMON)
+    assert again.n_resumed == 1 and again.seeds == first.seeds
+    assert estimates(again) == estimates(first)
+    (folder / "root-entropy.txt").write_text("oops")
+    with pytest.raises(ValueError, match="does not hold a root entropy"):
+        mdft.fit_many(problems, executor="serial", checkpoint=folder, **COMMON)
+
+
 def test_keyed_problems_errors_and_summary(tmp_path):
     probs = dict(zip(["ann", "bob"], make_problems(2)))
     probs["bad"] = dict(data=mdft.ChoiceData([[0, 5]], [[1, 1]]), M=M3)

@@ -355,6 +355,39 @@ def test_noise_narrower_than_the_cells_along_one_axis_is_refined_too():
     assert_within_stated_error(res, model, 25.47, 200_000, 14)
 
 
+def test_noise_narrower_than_the_cells_at_every_resolution_refuses_without_building(
+        monkeypatch):
+    # sigma2 = 1e-3 with attention spread ~1: the noise is narrower than the cells over
+    # sqrt(3) even at the finest resolution, so no pass can be trusted. The chain used to
+    # build (and, with method="solve", solve) every refinement up to max_states before
+    # refusing: 712 s for method="solve". It now refuses before building any chain.
+    model = MDFTModel(SETS["compromise"], [0.5, 0.5], **{**CANONICAL, "sigma2": 1e-3})
+
+    def no_build(*args, **kwargs):
+        raise RuntimeError("a chain was built")
+
+    monkeypatch.setattr(threshold_exact, "build_moment_chain", no_build)
+    for method in ("solve", "propagate"):
+        with pytest.raises(ValueError, match=r"narrower than the cells over sqrt\(3\) even at "
+                                             r"the finest resolution"):
+            threshold_probabilities(model, 10.0, method=method, fallback="raise")
+
+
+@pytest.mark.parametrize("options, phi2", [(SETS["compromise"], 2.5), (SETS["compromise"], 1.0),
+                                           ([A, B], 2.5)])
+def test_unstable_summed_preference_is_refused(options, phi2):
+    # phi1 = 0: S = I - phi2 * ones, which multiplies the summed preference by
+    # 1 - n phi2 at every step. From P0 = 0 the sum stays 0 only in exact arithmetic;
+    # mdft.simulate's rounding grows by |1 - n phi2| per step and drives its choices
+    # (three options, phi2 = 1: p about [0.38, 0.38, 0.24] against the chain's
+    # [0.42, 0.42, 0.17]), and with phi2 = 2.5 the chain refined for minutes.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel(options, [0.5, 0.5], phi1=0.0, phi2=phi2, beta=1.0)
+    with pytest.raises(ValueError, match=r"multiplies the summed preference 1\^T P by -?\d"):
+        threshold_probabilities(model, 20.0)
+
+
 def test_bad_fallback_is_a_clear_error():
     model = canonical(SETS["compromise"])
     with pytest.raises(ValueError, match=r"fallback must be one of \('simulation', 'raise'\) "
