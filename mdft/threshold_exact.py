@@ -396,7 +396,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             f"the feedback matrix S multiplies the summed preference 1^T P by {sums[0]:.6g} at "
             "every step (equal column sums of magnitude above 1), so it is unstable: it stays "
             "bounded only in exact arithmetic and any rounding grows without bound; lower "
-            "phi2, or use mdft.simulate for this model"
+            "phi2 (mdft.simulate runs such a model, but its choices then follow the rounding)"
         )
 
     if n > _MAX_OPTIONS:
