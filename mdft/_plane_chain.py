@@ -37,6 +37,12 @@ class TooManyStates(ValueError):
     """The resolution asked for more states than the budget allows."""
 
 
+def narrow_axes(g):
+    """The grid axes of ``plane_geometry`` output ``g`` along which the noise is narrower
+    than the cells over ``sqrt(3)`` (where a pass is not trusted)."""
+    return np.flatnonzero(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0))
+
+
 def plane_geometry(model, theta, kappa, margin=0.0):
     """Grid, corrected kernel and absorption parameters for resolution ``kappa``.
 
@@ -172,7 +178,7 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     logger.debug("moment chain: kappa %.3g, %d states, %d nonzeros, delta %.3g",
                  kappa, pos.shape[0], cols.shape[0], delta)
     # the kernel writes 32-bit column indices: a quarter less memory traffic per propagated step
-    narrow = bool(np.any(g["sd_exact"] < np.array([g["h1"], g["h2"]]) / math.sqrt(3.0)))
+    narrow = narrow_axes(g).size > 0
     return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext),
                        (g["h1"], g["h2"]), moving, float(delta), narrow)

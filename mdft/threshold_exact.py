@@ -29,7 +29,7 @@ import scipy.sparse.linalg as spla
 from . import _lattice
 from ._lattice_chain import build_chain
 from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
-from ._plane_chain import (TooManyStates, build_moment_chain, plane_geometry,
+from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, plane_geometry,
                            propagate_moments, reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
@@ -426,7 +426,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0))
-    if n == 2:
+    reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
+    if reason:
+        runs = []  # no pass can be trusted: refuse (or simulate) before building any chain
+    elif n == 2:
         runs = _binary_runs(model, theta, n_cells, max_states, solve)
     else:
         runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure,
@@ -434,10 +437,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     coarse = fine = None
     tails = [(0.0, 0.0)]
     refinements = 0
-    reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
-    if reason:
-        # no pass can be trusted: refuse (or simulate) before building any chain
-        runs = []
     for compute in runs:
         try:
             result = compute()
@@ -534,11 +533,11 @@ def _narrow_everywhere(model, theta, kappa):
     """
     finest = kappa / _REFINE**_MAX_REFINEMENTS
     g = plane_geometry(model, theta, finest)
-    cells = np.array([g["h1"], g["h2"]])
-    narrow = np.flatnonzero(g["sd_exact"] < cells / math.sqrt(3.0))
+    narrow = narrow_axes(g)
     if narrow.size == 0:
         return ""
     k = int(narrow[0])
+    cells = (g["h1"], g["h2"])
     return (f"the noise (per-step sd {float(g['sd_exact'][k]):.3g} along a grid axis) is "
             f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
             f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
