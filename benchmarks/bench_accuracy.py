@@ -112,7 +112,10 @@ def run_setting(name, world, sizes, draws, args, pools=None):
                 t0 = time.perf_counter()
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
-                    res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter, **METHODS[method])
+                    kw = dict(METHODS[method])
+                    if method == "MESC-IRL" and args.unselected_scale is not None:
+                        kw["unselected_scale"] = args.unselected_scale
+                    res = mesc_irl(world.nominal_mdp, demos, max_iter=args.max_iter, **kw)
                 secs = time.perf_counter() - t0
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
@@ -208,6 +211,8 @@ def main(argv=None):
     ap.add_argument("--min-kl-decrease", type=float, default=0.1, help="stopping rule of the baseline")
     ap.add_argument("--max-constraints", type=int, default=None,
                     help="cap on the baseline's constraints (the original never exceeds 9)")
+    ap.add_argument("--unselected-scale", type=float, default=None,
+                    help="unselected_scale of the default call (MESC-IRL rows); 0: the selected model alone")
     ap.add_argument("--paper-demos", action="store_true",
                     help="deterministic setting: use the paper's 10 sets of 100 demonstrations")
     ap.add_argument("--json", help="also write the raw rows to this file")

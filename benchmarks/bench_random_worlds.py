@@ -15,9 +15,13 @@ world's soft policy and given to
   only; the method assumes determinism).
 
 Each row gives precision and recall of ``zeta >= 0.6`` (mean, standard
-deviation, 10th percentile and median over worlds), and the soft false
+deviation, 10th percentile and median over worlds), the soft false
 positives and negatives of the paper's appendix at ``chi = 0.2``
-(:func:`irl.soft_constraint_errors`).
+(:func:`irl.soft_constraint_errors`) and, for the MESC-IRL variants, the
+visitation KL and JS divergences from ``--n-heldout`` held-out demonstrations
+to ``--n-model`` trajectories of the learned model (as in
+``bench_accuracy.py``; mean ± standard error over worlds). Where both
+"MESC-IRL" and "MESC ML" run, the table ends with their paired differences.
 
 Run: ``python benchmarks/bench_random_worlds.py [--worlds 20] [--n-demos 50] [--json out.json]``
 """
@@ -37,7 +41,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from irl import GridWorld, MESCResult, generate_demonstrations, infer_hard_constraints, mesc_irl  # noqa: E402
-from irl.metrics import hard_constraint_scores, soft_constraint_errors  # noqa: E402
+from irl.metrics import (  # noqa: E402
+    hard_constraint_scores, soft_constraint_errors, visitation_js_divergence, visitation_kl_divergence,
+)
 
 METHODS = {"MESC-IRL": {}, "MESC EG": {"optimizer": "eg"}, "MESC ML": {"selection": "none"}}
 
@@ -55,6 +61,13 @@ def score(world, zeta_true, mask, zeta, chi):
             "soft_fn": soft.false_negatives}
 
 
+def mean_se(values, digits, signed=False):
+    """``mean ± standard error`` of ``values`` as text."""
+    x = np.asarray(values, dtype=float)
+    se = x.std(ddof=1) / np.sqrt(x.size) if x.size > 1 else float("nan")
+    return f"{x.mean():{'+' if signed else ''}.{digits}f} ±{se:.{digits}f}"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worlds", type=int, default=20)
@@ -65,6 +78,8 @@ def main(argv=None):
     ap.add_argument("--threshold", type=float, default=0.6)
     ap.add_argument("--chi", type=float, default=0.2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--n-heldout", type=int, default=100, help="held-out demonstrations per world")
+    ap.add_argument("--n-model", type=int, default=400, help="trajectories of each learned model for the divergences")
     ap.add_argument("--json", help="write the per-world rows to this file")
     args = ap.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",")]
@@ -78,13 +93,20 @@ def main(argv=None):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
                     demos = generate_demonstrations(world.constrained_mdp, args.n_demos, rng=[args.seed, size, k, 1])
-                for m in methods:
+                    held = generate_demonstrations(world.constrained_mdp, args.n_heldout, rng=[args.seed, size, k, 2])
+                dims = dict(n_states=world.n_states, n_actions=world.n_actions)
+                for j, m in enumerate(methods):
                     t0 = time.perf_counter()
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", RuntimeWarning)
                         res = mesc_irl(world.nominal_mdp, demos, **METHODS[m])
                     row = score(world, zeta_true, res.zeta >= args.threshold, res.zeta, args.chi)
                     row["seconds"] = time.perf_counter() - t0
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        model = generate_demonstrations(res.constrained, args.n_model, rng=[args.seed, size, k, 3, j])
+                    row["kl"] = visitation_kl_divergence(held, model, pseudocount=0.5, **dims)
+                    row["js"] = visitation_js_divergence(held, model, **dims)
                     rows.setdefault((size, p_slip, m), []).append(row)
                 if p_slip == 0.0:
                     t0 = time.perf_counter()
@@ -95,7 +117,8 @@ def main(argv=None):
             print(f"  {size} x {size}, slip {p_slip}: done ({time.perf_counter() - t_start:.0f} s)", file=sys.stderr)
     print(f"# Random worlds: {args.worlds} per setting, {args.n_demos} demonstrations, zeta >= {args.threshold},"
           f" chi {args.chi}; precision / recall as mean ± sd [10th percentile, median] over worlds")
-    head = f"{'size':>4} {'slip':>4} {'method':<16} {'precision':>26} {'recall':>26} {'soft fp':>8} {'soft fn':>8} {'s/fit':>6}"
+    head = (f"{'size':>4} {'slip':>4} {'method':<16} {'precision':>26} {'recall':>26} {'soft fp':>8} {'soft fn':>8}"
+            f" {'KL':>14} {'JS':>16} {'s/fit':>6}")
     print(head)
     print("-" * len(head))
     for (size, p_slip, m), vals in rows.items():
@@ -106,7 +129,15 @@ def main(argv=None):
         fp = np.mean([v["soft_fp"] for v in vals])
         fn = np.mean([v["soft_fn"] for v in vals])
         secs = np.mean([v["seconds"] for v in vals])
-        print(f"{size:>4} {p_slip:>4.1f} {m:<16} {cells[0]:>26} {cells[1]:>26} {fp:>8.3f} {fn:>8.3f} {secs:>6.2f}")
+        div = [f"{mean_se([v[c] for v in vals], 3 + (c == 'js'))}" if "kl" in vals[0] else "" for c in ("kl", "js")]
+        print(f"{size:>4} {p_slip:>4.1f} {m:<16} {cells[0]:>26} {cells[1]:>26} {fp:>8.3f} {fn:>8.3f}"
+              f" {div[0]:>14} {div[1]:>16} {secs:>6.2f}")
+    for (size, p_slip, m), vals in rows.items():
+        plain = rows.get((size, p_slip, "MESC ML"))
+        if m != "MESC-IRL" or plain is None:
+            continue
+        diffs = [mean_se(np.subtract([v[c] for v in vals], [v[c] for v in plain]), 4, signed=True) for c in ("kl", "js")]
+        print(f"{size:>4} {p_slip:>4.1f} default - plain ML, paired over worlds: KL {diffs[0]}, JS {diffs[1]}")
     print(f"total {time.perf_counter() - t_start:.0f} s; load average at the end {os.getloadavg()[0]:.1f}"
           f" on {os.cpu_count()} cores")
     if args.json:

@@ -49,6 +49,15 @@ module selects the constraints the demonstrations give evidence for:
    size map of the penalty measured against the nominal reward's spread,
    the probability that a penalty of that size is a constraint rather than a
    mild preference. A feature outside the selected model has no evidence.
+4. **Penalties of the features without evidence** (:func:`fit_unselected`).
+   Setting them to zero discards what the demonstrations say about where
+   they do not go, and the selected model then predicts held-out behaviour
+   worse than plain maximum likelihood with few demonstrations. The
+   penalties of the learned model therefore maximise
+   ``L(omega) - strength / 2 * sum_{f not selected} omega_f**2`` from the
+   selected model's penalties (all features free; ``strength`` per
+   demonstration, as ``L`` is a mean): mild penalties, bounded on the scale
+   of the nominal reward, that shape the policy but never carry evidence.
 
 **Tolerances.** The fits above meet ``min(tol, TOTAL_TOL / N)`` (the
 screening ones ``SCREEN_FACTOR`` (30) times it): ``tol`` bounds the projected
@@ -305,3 +314,29 @@ def held_evidence(obj, fit, min_penalty=0.0):
     idx = np.flatnonzero((fit.penalties > 0.0) & (fit.penalties >= min_penalty))
     evidence[idx] = np.maximum(_held(obj, fit, idx), 0.0)
     return evidence
+
+
+
+class _RidgeOutside:
+    """The objective minus ``strength / 2 * sum of omega_f**2`` over the features f outside a selected model."""
+
+    def __init__(self, obj, outside, strength):
+        self.obj, self.weight = obj, np.where(outside, float(strength), 0.0)
+        self.n_demonstrations = obj.n_demonstrations
+
+    def _evaluate(self, w):
+        value, grad = self.obj._evaluate(w)
+        return value - 0.5 * float(self.weight @ (w * w)), grad - self.weight * w
+
+
+def fit_unselected(obj, fit, support, strength, opts):
+    """The penalties of every feature, with a ridge on those outside ``support`` (module docstring, step 4).
+
+    Maximises ``L(omega) - strength / 2 * sum_{f not in support} omega_f**2``
+    (``strength`` per demonstration, as ``L`` is a mean) from the selected
+    model's penalties ``fit.penalties``, at the tolerance in ``opts``.
+    Returns its :class:`Fit`, whose value and gradient are those of ``L``.
+    """
+    r = mesc_solvers.lbfgsb(_RidgeOutside(obj, ~support, strength), fit.penalties, **opts)
+    value, grad = obj._evaluate(r.penalties)
+    return mesc_solvers.Fit(r.penalties, float(value), grad, r.n_iter, r.converged, r.message)
