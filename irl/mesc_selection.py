@@ -54,10 +54,11 @@ module selects the constraints the demonstrations give evidence for:
    they do not go, and the selected model then predicts held-out behaviour
    worse than plain maximum likelihood with few demonstrations. The
    penalties of the learned model therefore maximise
-   ``L(omega) - strength / 2 * sum_{f not selected} omega_f**2`` from the
-   selected model's penalties (all features free; ``strength`` per
-   demonstration, as ``L`` is a mean): mild penalties, bounded on the scale
-   of the nominal reward, that shape the policy but never carry evidence.
+   ``L(omega) - strength / 2 * sum_{f not selected} omega_f**2`` over the
+   features outside the selected model, the selected penalties held
+   (``strength`` per demonstration, as ``L`` is a mean): mild penalties,
+   bounded on the scale of the nominal reward, that shape the policy but
+   carry no evidence and leave ``zeta`` as it was.
 
 **Tolerances.** The fits above meet ``min(tol, TOTAL_TOL / N)`` (the
 screening ones ``SCREEN_FACTOR`` (30) times it): ``tol`` bounds the projected
@@ -317,26 +318,28 @@ def held_evidence(obj, fit, min_penalty=0.0):
 
 
 
-class _RidgeOutside:
-    """The objective minus ``strength / 2 * sum of omega_f**2`` over the features f outside a selected model."""
 
-    def __init__(self, obj, outside, strength):
-        self.obj, self.weight = obj, np.where(outside, float(strength), 0.0)
+class _Shifted:
+    """The objective at ``base + x``: penalties ``x`` of the features outside a selected model on top of
+    the selected model's penalties ``base`` (zero outside it)."""
+
+    def __init__(self, obj, base):
+        self.obj, self.base = obj, base
         self.n_demonstrations = obj.n_demonstrations
 
-    def _evaluate(self, w):
-        value, grad = self.obj._evaluate(w)
-        return value - 0.5 * float(self.weight @ (w * w)), grad - self.weight * w
+    def _evaluate(self, x):
+        return self.obj._evaluate(self.base + x)
 
 
 def fit_unselected(obj, fit, support, strength, opts):
-    """The penalties of every feature, with a ridge on those outside ``support`` (module docstring, step 4).
+    """Penalties of the features outside ``support`` by a ridge fit, the selected ones held (module docstring, step 4).
 
-    Maximises ``L(omega) - strength / 2 * sum_{f not in support} omega_f**2``
-    (``strength`` per demonstration, as ``L`` is a mean) from the selected
-    model's penalties ``fit.penalties``, at the tolerance in ``opts``.
-    Returns its :class:`Fit`, whose value and gradient are those of ``L``.
+    Maximises ``L(base + x) - strength / 2 * |x|**2`` over ``x >= 0``, zero
+    on ``support`` (``base``: the penalties of ``fit``, zero outside it;
+    ``strength`` per demonstration, as ``L`` is a mean), from ``x = 0`` at
+    the tolerance in ``opts``. Returns the :class:`Fit` of ``base + x``, whose
+    value and gradient are those of ``L``.
     """
-    r = mesc_solvers.lbfgsb(_RidgeOutside(obj, ~support, strength), fit.penalties, **opts)
-    value, grad = obj._evaluate(r.penalties)
-    return mesc_solvers.Fit(r.penalties, float(value), grad, r.n_iter, r.converged, r.message)
+    base = np.where(support, fit.penalties, 0.0)
+    r = mesc_solvers.lbfgsb(_Shifted(obj, base), np.zeros(obj.n_features), l2=strength, free=~support, **opts)
+    return mesc_solvers.Fit(base + r.penalties, r.value, r.gradient, r.n_iter, r.converged, r.message)
