@@ -317,8 +317,6 @@ def held_evidence(obj, fit, min_penalty=0.0):
     return evidence
 
 
-
-
 class _Shifted:
     """The objective at ``base + x``: penalties ``x`` of the features outside a selected model on top of
     the selected model's penalties ``base`` (zero outside it)."""
