@@ -333,8 +333,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     probability and the first two moments of ``s`` there, and applies each
     state's transition linearised around a reference sum fitted by a pilot
     pass (exact to first order in the deviation; the spread of ``s`` within a
-    state enters through a two-point average, and half its whole effect is
-    added to the error estimate). From a state,
+    state enters through a two-point average, each point placing a cut cell's
+    mass where the region lies at its sum, and the change that a spread
+    smaller by ``sqrt(2)`` makes is added to the error estimate). From a state,
     the step given the attended attribute ``j`` is Gaussian with mean
     ``S P + C M e_j``; the probability that it ends with option ``i``
     chosen is a normal (two options) or bivariate normal (three) tail; the
