@@ -8,7 +8,11 @@ slightly, through ``S``); it is evaluated at ``s_ref - delta`` and
 ``s_ref + delta`` around the state's reference sum, and applied as their mean
 (``T0``) plus the slope (``T1``) times the state's deviation from ``s_ref``:
 exact to first order in the deviation, with the two-point mean standing for a
-spread ``delta`` of the sum within the state.
+spread ``delta`` of the sum within the state. The region ``{P_i < theta}`` moves
+with the sum, so each of the two evaluations places a cut cell's mass at the
+centroid of the part of the cell inside the region at that sum (the cell's
+centre once it lies wholly inside); the state's own position is that centroid
+at its reference sum.
 """
 
 from __future__ import annotations
@@ -226,6 +230,21 @@ def _grow1(a, n, cap):
 
 
 @njit
+def _place(c1, c2, h1, h2, E, bound, z1, z2):
+    """Where the mass of the cell centred at ``(c1, c2)`` lies when the region's edge is at
+    ``bound``: the centre of a cell inside, the centroid of a cut cell's inside part, and
+    ``(z1, z2)`` for a cell outside."""
+    kind = classify(c1, c2, h1, h2, E, bound)
+    if kind == 0:
+        return c1, c2
+    if kind == 1:
+        g1, g2, ok = centroid(c1, c2, h1, h2, E, bound)
+        if ok:
+            return g1, g2
+    return z1, z2
+
+
+@njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
           h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states):
     """Discover the reachable cells from the exact start and build the moment chain.
@@ -238,6 +257,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     index = np.full((n1, n2), -1, dtype=np.int64)
     cap = 1024
     pos = np.empty((cap, 2))
+    centre = np.empty((cap, 2))
     sref = np.empty(cap)
     snext = np.empty(cap)
     n_states = 0
@@ -292,15 +312,25 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
             z2 = pos[r, 1]
             s_mid = sref[r]
             d = delta
+        zA1 = z1
+        zA2 = z2
+        zB1 = z1
+        zB2 = z2
+        if r >= 0 and d > 0.0:
+            # the inside part of a cut cell, and so where its mass lies, moves with the sum
+            zA1, zA2 = _place(centre[r, 0], centre[r, 1], h1, h2, E, theta - (s_mid - d) / 3.0,
+                              z1, z2)
+            zB1, zB2 = _place(centre[r, 0], centre[r, 1], h1, h2, E, theta - (s_mid + d) / 3.0,
+                              z1, z2)
         box[0] = n1
         box[1] = -1
         box[2] = n2
         box[3] = -1
-        snA, lostA = _row(z1, z2, s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
+        snA, lostA = _row(zA1, zA2, s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
                           sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
                           marg2, ends, aA, box)
         if d > 0.0:
-            snB, lostB = _row(z1, z2, s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
+            snB, lostB = _row(zB1, zB2, s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
                               sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
                               marg1, marg2, ends, aB, box)
         else:
@@ -325,6 +355,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         if n_states + area > pos.shape[0]:
             cap = _doubled(pos.shape[0], n_states + area)
             pos = _grow(pos, n_states, cap)
+            centre = _grow(centre, n_states, cap)
             ab0 = _grow(ab0, n_states, cap)
             ab1 = _grow(ab1, n_states, cap)
             sref = _grow1(sref, n_states, cap)
@@ -355,6 +386,8 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                         g1, g2, _ok = centroid(c1, c2, h1, h2, E, lb)
                     pos[n_states, 0] = g1
                     pos[n_states, 1] = g2
+                    centre[n_states, 0] = c1
+                    centre[n_states, 1] = c2
                     sref[n_states] = min(max(ref[0] + ref[1] * g1 + ref[2] * g2, s_lo), s_hi)
                     t = n_states
                     index[a, b] = t

@@ -67,6 +67,10 @@ _SIM_STEP_WORK = 10.0
 _PILOT_DELTA = 0.5
 _PILOT_STEPS = 1_000
 _PILOT_PASSES = 2
+# Three options: a closure error above this share of a tolerance on the coarsest grid is
+# measured again on the next (and refuses at once there only beyond _FIRST_PAIR_FACTOR times
+# the tolerance).
+_RECHECK_SHARE = 0.5
 # Three options: the geometric tail is filled once the change it may make is within this
 # share of atol and rt_rtol (that change is added to the error estimate).
 _TAIL_SHARE = 0.01
@@ -329,8 +333,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     probability and the first two moments of ``s`` there, and applies each
     state's transition linearised around a reference sum fitted by a pilot
     pass (exact to first order in the deviation; the spread of ``s`` within a
-    state enters through a two-point average, and half its whole effect is
-    added to the error estimate). From a state,
+    state enters through a two-point average, each point placing a cut cell's
+    mass where the region lies at its sum, and the change that a spread
+    smaller by ``sqrt(2)`` makes is added to the error estimate). From a state,
     the step given the attended attribute ``j`` is Gaussian with mean
     ``S P + C M e_j``; the probability that it ends with option ``i``
     chosen is a normal (two options) or bivariate normal (three) tail; the
@@ -425,7 +430,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         )
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
-    closure = dict(error=(0.0, 0.0))
+    closure = dict(error=(0.0, 0.0), settled=True)
     reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
     if reason:
         runs = []  # no pass can be trusted: refuse (or simulate) before building any chain
@@ -448,8 +453,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
         spread_p, spread_rt = closure["error"]
-        if spread_p > atol or spread_rt > rt_rtol:
-            # known after the first pass: no finer pass can meet the tolerances
+        gross = closure.get("settled", True) or (spread_p > _FIRST_PAIR_FACTOR * atol
+                                                 or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
+        if gross and (spread_p > atol or spread_rt > rt_rtol):
+            # known once measured on a grid finer than the coarsest (or far beyond the
+            # tolerances there): no finer pass can meet the tolerances
             reason = (f"the spread of the summed preference alone may change the probabilities "
                       f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
@@ -628,10 +636,15 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 # nonzeros): the fit is a plane and a spread, which need no finer grid
                 pilot(k * _REFINE)
             result = run(k, state["delta"])
-            if first and state["delta"] > 0.0:
+            if state["delta"] > 0.0 and (first or not closure["settled"]):
                 # the closure's error: the change that a spread of the sum within the states
-                # smaller by a factor sqrt(2) makes
-                closure.update(error=_error_estimate(result, run(k, state["delta"] / _REFINE)))
+                # smaller by a factor sqrt(2) makes; measured on the coarsest grid, and again
+                # on the next while it exceeds half a tolerance there (a cut cell's place
+                # moves with the sum, more unevenly the coarser the cells)
+                err = _error_estimate(result, run(k, state["delta"] / _REFINE))
+                closure.update(error=err, settled=not first or (
+                    err[0] <= _RECHECK_SHARE * tolerances[0]
+                    and err[1] <= _RECHECK_SHARE * tolerances[1]))
             return result
         return compute
 
