@@ -225,7 +225,10 @@ def main(argv=None):
         ap.error(f"unknown methods {unknown}; choose from {list(METHODS)}")
     sizes = [1, 5, 20] if args.quick else [int(x) for x in args.sizes.split(",")]
     draws = 3 if args.quick else args.draws
-    settings = [s.strip() for s in args.settings.split(",")]
+    settings = ["det", "slip"] if args.settings.strip() == "both" else [s.strip() for s in args.settings.split(",")]
+    unknown = [s for s in settings if s not in ("det", "slip")]
+    if unknown:
+        ap.error(f"--settings must be det, slip, det,slip or both (got {args.settings!r})")
     print("# Accuracy of learned constraints: the paper's Figure 1 world")
     print(f"zeta threshold {args.threshold}, chi {args.chi}; KL(held-out || model) of state-action visitation,"
           f" pseudocount 0.5, and JS (no smoothing); {args.n_heldout} held-out and {args.n_model} model trajectories; mean ± sd over draws")
