@@ -379,11 +379,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                     c1 = o1 + a * h1
                     c2 = o2 + b * h2
                     sr = min(max(ref[0] + ref[1] * c1 + ref[2] * c2, s_lo), s_hi)
-                    lb = theta - sr / 3.0
-                    g1 = c1
-                    g2 = c2
-                    if classify(c1, c2, h1, h2, E, lb) == 1:
-                        g1, g2, _ok = centroid(c1, c2, h1, h2, E, lb)
+                    g1, g2 = _place(c1, c2, h1, h2, E, theta - sr / 3.0, c1, c2)
                     pos[n_states, 0] = g1
                     pos[n_states, 1] = g2
                     centre[n_states, 0] = c1

@@ -453,7 +453,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
         spread_p, spread_rt = closure["error"]
-        gross = closure.get("settled", True) or (spread_p > _FIRST_PAIR_FACTOR * atol
+        gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
                                                  or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
         if gross and (spread_p > atol or spread_rt > rt_rtol):
             # known once measured on a grid finer than the coarsest (or far beyond the
