@@ -30,7 +30,8 @@ relative error is below about 0.2 %); all include the simulation's own error
 cannot vouch for (ValueError) is counted and listed; with ``--fallback simulation``
 it is answered by the simulation fallback instead ("sim" in the states column). Timings are wall-clock
 after compilation, on whatever else the machine is doing: quote them with the
-load average.
+load average. ``--threads N`` sets numba's threads (the chain's build and
+propagation run in parallel parts; default one thread per core).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import time
 import warnings
 from pathlib import Path
 
+import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -188,10 +190,16 @@ def main(argv=None):
                              "alone; 'simulation': the library's default)")
     parser.add_argument("--cache", default=None,
                         help="directory that stores the simulated references")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="numba threads of the chain (default: numba's, one per core)")
     args = parser.parse_args(argv)
+    if args.threads is not None:
+        if args.threads < 1:
+            parser.error(f"--threads must be at least 1, got {args.threads}")
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     rng = np.random.default_rng(args.seed)
     print(f"load average {os.getloadavg()[0]:.2f}; {args.trials} simulated trials per model; "
-          f"max_steps={args.max_steps}")
+          f"max_steps={args.max_steps}; {numba.get_num_threads()} numba threads")
     # compile outside the timings
     warm, th = draw_model(np.random.default_rng(0), 3)
     for m in (warm, draw_model(np.random.default_rng(0), 2)[0]):

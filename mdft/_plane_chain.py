@@ -14,6 +14,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -31,6 +32,14 @@ _MIN_CELLS_PER_THETA = 6.0
 _LEVEL_FACTOR = 1.0
 # Largest index box (levels x cells x cells) the builder may allocate.
 _MAX_BOX = 40_000_000
+# Chains with at least this many nonzeros are propagated in parts on numba's threads
+# (mdft._plane_moment.PARTS of them whatever the number of threads, so that the sums are the
+# same on any machine); smaller ones serially, where waking the threads costs more than it saves.
+_PARTS_MIN_NONZEROS = 20_000
+# Cells of work space (8 bytes each) the build's parallel parts may allocate together.
+_PART_WORK_CELLS = 12_000_000
+# Room for a source's cells in the build's first block (widened as it meets wider sources).
+_FIRST_SLOT = 256
 
 
 class TooManyStates(ValueError):
@@ -146,6 +155,13 @@ class MomentChain:
         return self.pos.shape[0]
 
 
+def _build_parts(box):
+    """Parts the build evaluates its sources in: one per numba thread (at most 8), while
+    their work space (three arrays the size of the index box each) stays within
+    ``_PART_WORK_CELLS``. The chain does not depend on it."""
+    return int(max(1, min(numba.get_num_threads(), 8, _PART_WORK_CELLS // (3 * box))))
+
+
 def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     """The moment chain at resolution ``kappa`` with reference sums ``ref`` (see
     :func:`mdft._plane_moment.build`) and spread ``delta``.
@@ -166,7 +182,7 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],
         g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], np.asarray(ref, dtype=np.float64),
-        g["s_lo"], g["s_hi"], float(delta), max_states,
+        g["s_lo"], g["s_hi"], float(delta), max_states, _build_parts(box), _FIRST_SLOT,
     )
     (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
      start_abs, start_snext) = out
@@ -184,7 +200,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
                        (g["h1"], g["h2"]), moving, float(delta), narrow)
 
 
-def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01):
+def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
+                      in_parts=None):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
     tail_errors)``.
 
@@ -194,6 +211,9 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     it was filled. ``second`` also carries the second moment of the sum and the
     occupation (a pilot pass); otherwise ``occupation`` is None. ``floor``: mean
     response times of options chosen less often weigh in proportionally.
+    ``in_parts``: run each step in parts on numba's threads (None: for chains of
+    at least ``_PARTS_MIN_NONZEROS`` nonzeros); the answer is the same whatever the
+    number of threads.
     """
     n = chain.n_states
     x = np.zeros(n)
@@ -204,10 +224,12 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     rt_pmf[0] = chain.start_absorbed
     occ = np.zeros((n if second else 1, 3))
     errors = np.zeros(2)
+    if in_parts is None:
+        in_parts = chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     steps, tail_start, mass = _plane_moment.propagate(
         chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
         chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol, bool(second),
-        float(budget[0]), float(budget[1]), float(floor), errors)
+        float(budget[0]), float(budget[1]), float(floor), errors, bool(in_parts))
     # the linearised choices can dip below zero by rounding-sized amounts where a state's
     # mean sum lies far from its reference; a probability is never negative
     np.maximum(rt_pmf, 0.0, out=rt_pmf)

@@ -21,7 +21,9 @@ import math
 
 import numpy as np
 
-from ._numba import njit
+from numba import prange
+
+from ._numba import njit, njit_parallel
 from ._plane_tail import WINDOW, check, fill, snapshot
 from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
                      _CUT)
@@ -37,6 +39,8 @@ LOST_MASS = 2
 _REACH = 5.7
 # Propagation leaves out states holding less than this share of the undecided mass.
 _SKIP = 1e-15
+# The build evaluates at most this many discovered sources at a time (in parallel parts).
+_BLOCK_SOURCES = 256
 
 
 @njit
@@ -245,14 +249,147 @@ def _place(c1, c2, h1, h2, E, bound, z1, z2):
 
 
 @njit
+def _compact(sA, sB, box, n2, cell, vals_a, vals_b, k0, cap):
+    """Move the cells of ``box`` that either evaluation reached from ``sA``, ``sB`` (zeroed
+    on the way) to ``cell`` (``a * n2 + b``), ``vals_a``, ``vals_b`` from ``k0`` on, in the
+    order the chain stores them; their number, or -1 (nothing moved) when more than ``cap``."""
+    count = 0
+    for a in range(box[0], box[1] + 1):
+        for b in range(box[2], box[3] + 1):
+            if sA[a, b] != 0.0 or sB[a, b] != 0.0:
+                count += 1
+    if count > cap:
+        return -1
+    k = k0
+    for a in range(box[0], box[1] + 1):
+        for b in range(box[2], box[3] + 1):
+            vA = sA[a, b]
+            vB = sB[a, b]
+            if vA == 0.0 and vB == 0.0:
+                continue
+            sA[a, b] = 0.0
+            sB[a, b] = 0.0
+            cell[k] = a * n2 + b
+            vals_a[k] = vA
+            vals_b[k] = vB
+            k += 1
+    return count
+
+
+@njit
+def _source(z1, z2, s_mid, d, St, ex, ey, reach, CM, w, shrunk, sdc, exact, sde, theta, o1, o2,
+            h1, h2, n1, n2, sdo, psd, prho, sA, sB, tmp, marg1, marg2, ends, aA, aB, box):
+    """Both evaluations of one source (at ``s_mid - d`` and ``s_mid + d``; one when ``d``
+    is 0) into ``sA``, ``sB``, ``aA``, ``aB`` and ``box``; returns ``(snA, snB, lost)``."""
+    box[0] = n1
+    box[1] = -1
+    box[2] = n2
+    box[3] = -1
+    snA, lostA = _row(z1[0], z2[0], s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
+                      sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
+                      marg2, ends, aA, box)
+    if d > 0.0:
+        snB, lostB = _row(z1[1], z2[1], s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc,
+                          exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
+                          marg1, marg2, ends, aB, box)
+    else:
+        snB = snA
+        lostB = lostA
+        for i in range(3):
+            aB[i] = aA[i]
+        for a in range(box[0], box[1] + 1):
+            for b in range(box[2], box[3] + 1):
+                sB[a, b] = sA[a, b]
+    return snA, snB, lostA or lostB
+
+
+@njit
+def _small(S, E, h1, h2, sd_cell, sd_exact, sd_opt, pair_sd, pair_rho):
+    """The small inputs of :func:`_row` as tuples (value types: no reference counting per
+    call): ``S``, the lines ``ex``, ``ey`` (the columns of ``E``), each line's ``reach``
+    across a cell, ``sd_cell``, ``sd_exact``, ``sd_opt``, ``pair_sd``, ``pair_rho``."""
+    St = ((S[0, 0], S[0, 1], S[0, 2]), (S[1, 0], S[1, 1], S[1, 2]), (S[2, 0], S[2, 1], S[2, 2]))
+    ex = (E[0, 0], E[1, 0], E[2, 0])
+    ey = (E[0, 1], E[1, 1], E[2, 1])
+    reach = (0.5 * (abs(E[0, 0]) * h1 + abs(E[0, 1]) * h2),
+             0.5 * (abs(E[1, 0]) * h1 + abs(E[1, 1]) * h2),
+             0.5 * (abs(E[2, 0]) * h1 + abs(E[2, 1]) * h2))
+    sdc = (sd_cell[0], sd_cell[1])
+    sde = (sd_exact[0], sd_exact[1])
+    sdo = (sd_opt[0], sd_opt[1], sd_opt[2])
+    psd = ((pair_sd[0, 0], pair_sd[0, 1], pair_sd[0, 2]),
+           (pair_sd[1, 0], pair_sd[1, 1], pair_sd[1, 2]),
+           (pair_sd[2, 0], pair_sd[2, 1], pair_sd[2, 2]))
+    prho = ((pair_rho[0, 0], pair_rho[0, 1], pair_rho[0, 2]),
+            (pair_rho[1, 0], pair_rho[1, 1], pair_rho[1, 2]),
+            (pair_rho[2, 0], pair_rho[2, 1], pair_rho[2, 2]))
+    return St, ex, ey, reach, sdc, sde, sdo, psd, prho
+
+
+@njit
+def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta,
+                     o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
+                     boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost):
+    """The sources ``part, part + n_parts, ...`` of a block (see
+    :func:`_sources_in_parts`), with the work space of that part."""
+    n_parts = work.shape[0]
+    St, ex, ey, reach, sdc, sde, sdo, psd, prho = _small(S, E, h1, h2, sd_cell, sd_exact,
+                                                         sd_opt, pair_sd, pair_rho)
+    sA = work[part, 0]
+    sB = work[part, 1]
+    tmp = work[part, 2]
+    marg1 = margs[part, 0]
+    marg2 = margs[part, 1]
+    box = boxes[part]
+    for i in range(part, zs.shape[0], n_parts):
+        snA, snB, lst = _source(
+            (zs[i, 0], zs[i, 1]), (zs[i, 2], zs[i, 3]), s_mid[i], d[i], St, ex, ey, reach,
+            CM, w, shrunk, sdc, exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho,
+            sA, sB, tmp, marg1, marg2, ends[part], absorbed[i, 0], absorbed[i, 1], box)
+        s_next[i, 0] = snA
+        s_next[i, 1] = snB
+        lost[i] = lst
+        counts[i] = _compact(sA, sB, box, n2, cell, vals_a, vals_b, i * cap, cap)
+        if counts[i] < 0:
+            for a in range(box[0], box[1] + 1):
+                for b in range(box[2], box[3] + 1):
+                    sA[a, b] = 0.0
+                    sB[a, b] = 0.0
+
+
+@njit_parallel
+def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1,
+                      o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends, boxes,
+                      cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost):
+    """Both evaluations of each source of a block (``zs[i] = (z1A, z1B, z2A, z2B)``),
+    sources dealt in turn to ``work.shape[0]`` parts on numba's threads, each part with its
+    own work space. Source ``i``'s cells go to ``cell``, ``vals_a``, ``vals_b`` from
+    ``i * cap`` (``counts[i]``; -1 when they did not fit: the caller evaluates it again),
+    its choices to ``absorbed[i]`` and its next sums to ``s_next[i]``. (The parallel loop
+    only calls :func:`_sources_of_part`: a large body in it took numba half a minute more
+    to compile.)"""
+    for part in prange(work.shape[0]):
+        # (one integer type for the part: numba compiles the body for each it sees)
+        _sources_of_part(np.int64(part), zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact,
+                         theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs,
+                         ends, boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost)
+
+
+@njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
-          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states):
+          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states,
+          n_parts, first_slot):
     """Discover the reachable cells from the exact start and build the moment chain.
 
     ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
-    ``r0 + r1 z1 + r2 z2``, clipped to ``[s_lo, s_hi]``. Returns ``(status,
-    pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
-    start_abs, start_snext)``.
+    ``r0 + r1 z1 + r2 z2``, clipped to ``[s_lo, s_hi]``. The states are
+    discovered breadth first; the sources waiting to be evaluated (up to
+    :data:`_BLOCK_SOURCES` at a time) are evaluated in ``n_parts`` parts on
+    numba's threads and then added in order, so the chain is the same for any
+    ``n_parts``. Each source's cells get a slot of ``first_slot`` entries at
+    first, widened as wider sources are met (a source that does not fit is
+    evaluated again alone). Returns ``(status, pos, sref, snext, row_ptr, cols, t0, t1,
+    r0, r1, start_cols, start_vals, start_abs, start_snext)``.
     """
     index = np.full((n1, n2), -1, dtype=np.int64)
     cap = 1024
@@ -269,32 +406,16 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     ab0 = np.zeros((cap, 3))
     ab1 = np.zeros((cap, 3))
     n_vals = 0
-    sA = np.zeros((n1, n2))
-    sB = np.zeros((n1, n2))
-    tmp = np.zeros((n1, n2))
-    aA = np.zeros(3)
-    aB = np.zeros(3)
-    # work space of _row, allocated once
-    marg1 = np.zeros((3, n1))
-    marg2 = np.zeros((3, n2))
-    ends = np.zeros(3 * 3 + 2)
-    # small inputs of _row as tuples (value types: no reference counting per call)
-    St = ((S[0, 0], S[0, 1], S[0, 2]), (S[1, 0], S[1, 1], S[1, 2]), (S[2, 0], S[2, 1], S[2, 2]))
-    ex = (E[0, 0], E[1, 0], E[2, 0])
-    ey = (E[0, 1], E[1, 1], E[2, 1])
-    reach = (0.5 * (abs(E[0, 0]) * h1 + abs(E[0, 1]) * h2),
-             0.5 * (abs(E[1, 0]) * h1 + abs(E[1, 1]) * h2),
-             0.5 * (abs(E[2, 0]) * h1 + abs(E[2, 1]) * h2))
-    sdc = (sd_cell[0], sd_cell[1])
-    sde = (sd_exact[0], sd_exact[1])
-    sdo = (sd_opt[0], sd_opt[1], sd_opt[2])
-    psd = ((pair_sd[0, 0], pair_sd[0, 1], pair_sd[0, 2]),
-           (pair_sd[1, 0], pair_sd[1, 1], pair_sd[1, 2]),
-           (pair_sd[2, 0], pair_sd[2, 1], pair_sd[2, 2]))
-    prho = ((pair_rho[0, 0], pair_rho[0, 1], pair_rho[0, 2]),
-            (pair_rho[1, 0], pair_rho[1, 1], pair_rho[1, 2]),
-            (pair_rho[2, 0], pair_rho[2, 1], pair_rho[2, 2]))
-    box = np.zeros(4, dtype=np.int64)
+    # work space of each part (dense scratch of the two evaluations and of _row), allocated once
+    work = np.zeros((n_parts, 3, n1, n2))
+    margs = np.zeros((n_parts, 2, 3, max(n1, n2)))
+    ends = np.zeros((n_parts, 3 * 3 + 2))
+    boxes = np.zeros((n_parts, 4), dtype=np.int64)
+    # a block's evaluated sources: cells (slots of `slot` entries), choices, next sums
+    slot = first_slot
+    blk_cell = np.empty(0, dtype=np.int64)
+    blk_a = np.empty(0)
+    blk_b = np.empty(0)
     start_cols = np.empty(0, dtype=np.int64)
     start_vals = np.empty(0)
     start_abs = np.zeros(3)
@@ -302,75 +423,104 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     status = OK
     r = -1
     while r < n_states:
-        if r < 0:
-            z1 = z_start[0]
-            z2 = z_start[1]
-            s_mid = s_start
-            d = 0.0
-        else:
-            z1 = pos[r, 0]
-            z2 = pos[r, 1]
-            s_mid = sref[r]
-            d = delta
-        zA1 = z1
-        zA2 = z2
-        zB1 = z1
-        zB2 = z2
-        if r >= 0 and d > 0.0:
-            # the inside part of a cut cell, and so where its mass lies, moves with the sum
-            zA1, zA2 = _place(centre[r, 0], centre[r, 1], h1, h2, E, theta - (s_mid - d) / 3.0,
-                              z1, z2)
-            zB1, zB2 = _place(centre[r, 0], centre[r, 1], h1, h2, E, theta - (s_mid + d) / 3.0,
-                              z1, z2)
-        box[0] = n1
-        box[1] = -1
-        box[2] = n2
-        box[3] = -1
-        snA, lostA = _row(zA1, zA2, s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
-                          sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
-                          marg2, ends, aA, box)
-        if d > 0.0:
-            snB, lostB = _row(zB1, zB2, s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
-                              sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
-                              marg1, marg2, ends, aB, box)
-        else:
-            snB = snA
-            lostB = lostA
-            for i in range(3):
-                aB[i] = aA[i]
-            for a in range(box[0], box[1] + 1):
-                for b in range(box[2], box[3] + 1):
-                    sB[a, b] = sA[a, b]
-        if lostA or lostB:
-            status = LOST_MASS
-        row_start = n_vals
-        # room for the row's nonzeros and new states before the loop over its cells: arrays
-        # reassigned inside that loop would be reference-counted at every cell
-        area = max(box[1] - box[0] + 1, 0) * max(box[3] - box[2] + 1, 0)
-        if n_vals + area > cols.shape[0]:
-            vcap = _doubled(cols.shape[0], n_vals + area)
-            cols = _grow1(cols, n_vals, vcap)
-            t0 = _grow1(t0, n_vals, vcap)
-            t1 = _grow1(t1, n_vals, vcap)
-        if n_states + area > pos.shape[0]:
-            cap = _doubled(pos.shape[0], n_states + area)
-            pos = _grow(pos, n_states, cap)
-            centre = _grow(centre, n_states, cap)
-            ab0 = _grow(ab0, n_states, cap)
-            ab1 = _grow(ab1, n_states, cap)
-            sref = _grow1(sref, n_states, cap)
-            snext = _grow1(snext, n_states, cap)
-            rp2 = np.zeros(cap + 1, dtype=np.int64)
-            rp2[:n_states + 1] = row_ptr[:n_states + 1]
-            row_ptr = rp2
-        for a in range(box[0], box[1] + 1):
-            for b in range(box[2], box[3] + 1):
-                vA = sA[a, b]
-                vB = sB[a, b]
-                if vA == 0.0 and vB == 0.0:
-                    continue
-                sA[a, b] = 0.0
-                sB[a, b] = 0.0
+        # the block: the start alone, then the sources discovered and not yet evaluated
+        r_end = 0 if r < 0 else min(n_states, r + _BLOCK_SOURCES)
+        n_blk = r_end - r
+        zs = np.empty((n_blk, 4))
+        s_mid = np.empty(n_blk)
+        dd = np.empty(n_blk)
+        for i in range(n_blk):
+            q = r + i
+            if q < 0:
+                z1 = z_start[0]
+                z2 = z_start[1]
+                s_mid[i] = s_start
+                dd[i] = 0.0
+            else:
+                z1 = pos[q, 0]
+                z2 = pos[q, 1]
+                s_mid[i] = sref[q]
+                dd[i] = delta
+            zs[i, 0] = z1
+            zs[i, 1] = z1
+            zs[i, 2] = z2
+            zs[i, 3] = z2
+            if q >= 0 and delta > 0.0:
+                # the inside part of a cut cell, and so where its mass lies, moves with the sum
+                zA1, zA2 = _place(centre[q, 0], centre[q, 1], h1, h2, E,
+                                  theta - (s_mid[i] - delta) / 3.0, z1, z2)
+                zB1, zB2 = _place(centre[q, 0], centre[q, 1], h1, h2, E,
+                                  theta - (s_mid[i] + delta) / 3.0, z1, z2)
+                zs[i, 0] = zA1
+                zs[i, 1] = zB1
+                zs[i, 2] = zA2
+                zs[i, 3] = zB2
+        if blk_cell.shape[0] < n_blk * slot:
+            blk_cell = np.empty(n_blk * slot, dtype=np.int64)
+            blk_a = np.empty(n_blk * slot)
+            blk_b = np.empty(n_blk * slot)
+        counts = np.empty(n_blk, dtype=np.int64)
+        absorbed = np.empty((n_blk, 2, 3))
+        s_next = np.empty((n_blk, 2))
+        lost = np.zeros(n_blk, dtype=np.bool_)
+        _sources_in_parts(zs, s_mid, dd, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta,
+                          o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
+                          boxes, slot, blk_cell, blk_a, blk_b, counts, absorbed, s_next, lost)
+        widest = 0
+        for i in range(n_blk):
+            q = r + i
+            if lost[i]:
+                status = LOST_MASS
+            cell = blk_cell
+            va = blk_a
+            vb = blk_b
+            k0 = i * slot
+            n_new = counts[i]
+            if n_new < 0:
+                # more cells than the slot: evaluate the source again alone, with more room
+                one_cap = 2 * slot
+                while n_new < 0:
+                    one_cap *= 2
+                    one_cell = np.empty(one_cap, dtype=np.int64)
+                    one_a = np.empty(one_cap)
+                    one_b = np.empty(one_cap)
+                    _sources_in_parts(zs[i:i + 1], s_mid[i:i + 1], dd[i:i + 1], S, E, CM, w,
+                                      shrunk, sd_cell, exact, sd_exact, theta, o1, o2, h1, h2,
+                                      n1, n2, sd_opt, pair_sd, pair_rho, work[:1], margs[:1],
+                                      ends[:1], boxes[:1], one_cap, one_cell, one_a, one_b,
+                                      counts[i:i + 1], absorbed[i:i + 1], s_next[i:i + 1],
+                                      lost[i:i + 1])
+                    n_new = counts[i]
+                cell = one_cell
+                va = one_a
+                vb = one_b
+                k0 = 0
+            widest = max(widest, n_new)
+            row_start = n_vals
+            # room for the row's nonzeros and new states before the loop over its cells:
+            # arrays reassigned inside that loop would be reference-counted at every cell
+            if n_vals + n_new > cols.shape[0]:
+                vcap = _doubled(cols.shape[0], n_vals + n_new)
+                cols = _grow1(cols, n_vals, vcap)
+                t0 = _grow1(t0, n_vals, vcap)
+                t1 = _grow1(t1, n_vals, vcap)
+            if n_states + n_new > pos.shape[0]:
+                cap = _doubled(pos.shape[0], n_states + n_new)
+                pos = _grow(pos, n_states, cap)
+                centre = _grow(centre, n_states, cap)
+                ab0 = _grow(ab0, n_states, cap)
+                ab1 = _grow(ab1, n_states, cap)
+                sref = _grow1(sref, n_states, cap)
+                snext = _grow1(snext, n_states, cap)
+                rp2 = np.zeros(cap + 1, dtype=np.int64)
+                rp2[:n_states + 1] = row_ptr[:n_states + 1]
+                row_ptr = rp2
+            d = dd[i]
+            for k in range(k0, k0 + n_new):
+                a = cell[k] // n2
+                b = cell[k] - a * n2
+                vA = va[k]
+                vB = vb[k]
                 t = index[a, b]
                 if t < 0:
                     if n_states >= max_states:
@@ -394,22 +544,26 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 n_vals += 1
             if status == TOO_MANY_STATES:
                 break
+            if q < 0:
+                start_cols = cols[row_start:n_vals].astype(np.int64)
+                start_vals = t0[row_start:n_vals].copy()
+                n_vals = row_start
+                for j in range(3):
+                    start_abs[j] = absorbed[i, 0, j]
+                start_snext = s_next[i, 0]
+            else:
+                row_ptr[q + 1] = n_vals
+                for j in range(3):
+                    aA = absorbed[i, 0, j]
+                    aB = absorbed[i, 1, j]
+                    ab0[q, j] = 0.5 * (aA + aB)
+                    ab1[q, j] = (aB - aA) / (2.0 * d) if d > 0.0 else 0.0
+                snext[q] = 0.5 * (s_next[i, 0] + s_next[i, 1])
         if status == TOO_MANY_STATES:
             break
-        if r < 0:
-            start_cols = cols[row_start:n_vals].astype(np.int64)
-            start_vals = t0[row_start:n_vals].copy()
-            n_vals = row_start
-            for i in range(3):
-                start_abs[i] = aA[i]
-            start_snext = snA
-        else:
-            row_ptr[r + 1] = n_vals
-            for i in range(3):
-                ab0[r, i] = 0.5 * (aA[i] + aB[i])
-                ab1[r, i] = (aB[i] - aA[i]) / (2.0 * d) if d > 0.0 else 0.0
-            snext[r] = 0.5 * (snA + snB)
-        r += 1
+        # the next block's slots: room for the widest source so far, and a quarter more
+        slot = max(slot, widest + widest // 4)
+        r = r_end
     # the nonzeros are returned as views of their buffers: a copy would touch as much memory
     # again (the buffers' unused ends were never written)
     return (status, pos[:n_states].copy(), sref[:n_states].copy(), snext[:n_states].copy(),
@@ -418,10 +572,72 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
             start_snext)
 
 
+# Parallel propagation: the rows are dealt to this many parts, in blocks of _BLOCK rows in
+# turn, and each part scatters into its own accumulators (summed in a fixed order after the
+# step), so the sums do not depend on the number of threads.
+PARTS = 4
+_BLOCK = 16
+
+
+@njit_parallel
+def _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second):
+    """One step of the chain in :data:`PARTS` parts run on numba's threads: part ``p``
+    scatters the rows of its blocks (``src[r] = (x, u, carry, cu)``; a row whose terms are
+    all zero adds nothing and is skipped, as in the serial scatter) into ``acc[p, 0]``
+    (``x``), ``acc[p, 1]`` (``m``) and, with ``second``, ``acc[p, 2]`` (``q``)."""
+    n = src.shape[0]
+    n_blocks = (n + _BLOCK - 1) // _BLOCK
+    for part in prange(PARTS):
+        y = acc[part, 0]
+        ym = acc[part, 1]
+        yq = acc[part, 2]
+        for blk in range(part, n_blocks, PARTS):
+            for r in range(blk * _BLOCK, min((blk + 1) * _BLOCK, n)):
+                xr = src[r, 0]
+                u = src[r, 1]
+                carry = src[r, 2]
+                cu = src[r, 3]
+                if xr == 0.0 and u == 0.0 and carry == 0.0 and cu == 0.0:
+                    continue
+                for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+                    c = np.uint64(cols[k])
+                    a0 = t0[k]
+                    a1 = t1[k]
+                    y[c] += a0 * xr + a1 * u
+                    ym[c] += a0 * carry + a1 * cu
+                if second:
+                    q0 = q0s[r]
+                    for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+                        yq[np.uint64(cols[k])] += t0[k] * q0
+
+
+@njit_parallel
+def _sum_parts(acc, y, ym, yq, second):
+    """``y``, ``ym`` (and ``yq``) = the parts' accumulators summed in order; those zeroed."""
+    n_moments = 3 if second else 2
+    for c in prange(y.shape[0]):
+        for j in range(n_moments):
+            v = 0.0
+            for part in range(PARTS):
+                v += acc[part, j, c]
+                acc[part, j, c] = 0.0
+            if j == 0:
+                y[c] = v
+            elif j == 1:
+                ym[c] = v
+            else:
+                yq[c] = v
+
+
 @njit
 def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q, rt_pmf, occ,
-              tol, second, budget_p, budget_rt, floor, errors):
+              tol, second, budget_p, budget_rt, floor, errors, in_parts):
     """Apply the moment chain step by step (see the module docstring).
+
+    With ``in_parts``, each step's scatter runs in :data:`PARTS` parts on numba's threads
+    (:func:`_scatter_parts`); otherwise serially. The parts' sums are added in a fixed
+    order, so the answer does not depend on the number of threads (it differs from the
+    serial scatter's by rounding).
 
     ``x`` and ``m`` (probability and first moment of the sum on each state)
     are updated in place; ``dvar`` is ``delta**2``, the spread of the sum
@@ -443,6 +659,11 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     y = np.zeros(n_states)
     ym = np.zeros(n_states)
     yq = np.zeros(n_states)
+    # the sources' terms of a step, for the parts
+    n_src = n_states if in_parts else 0
+    src = np.zeros((n_src, 4))
+    q0s = np.zeros(n_src if second else 0)
+    acc = np.zeros((PARTS if in_parts else 0, 3, n_states))
     hazard = np.zeros(n_steps)
     done_p = np.zeros(n_opt)
     done_w = np.zeros(n_opt)
@@ -488,6 +709,12 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
         for r in range(n_states):
             xr = x[r]
             mr = m[r]
+            if in_parts:
+                # an empty or skipped state adds nothing
+                for i in range(4):
+                    src[r, i] = 0.0
+                if second:
+                    q0s[r] = 0.0
             if xr == 0.0 and mr == 0.0:
                 continue
             if abs(xr) < cut and abs(mr) < cut * s_scale:
@@ -503,6 +730,21 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             sn = snext[r]
             carry = sn * xr + b_sum * u
             cu = sn * u + b_sum * dvar * xr
+            q0 = 0.0
+            if second:
+                occ[r, 0] += xr
+                occ[r, 1] += mr
+                occ[r, 2] += q[r]
+                v = q[r] - 2.0 * sr * mr + sr * sr * xr
+                q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
+            if in_parts:
+                src[r, 0] = xr
+                src[r, 1] = u
+                src[r, 2] = carry
+                src[r, 3] = cu
+                if second:
+                    q0s[r] = q0
+                continue
             # unsigned indices: numba then omits the negative-index wraparound on every access,
             # which made this loop (the propagation's whole cost) about 1.5-2 times slower
             for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
@@ -512,13 +754,11 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 y[c] += a0 * xr + a1 * u
                 ym[c] += a0 * carry + a1 * cu
             if second:
-                occ[r, 0] += xr
-                occ[r, 1] += mr
-                occ[r, 2] += q[r]
-                v = q[r] - 2.0 * sr * mr + sr * sr * xr
-                q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v
                 for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
                     yq[np.uint64(cols[k])] += t0[k] * q0
+        if in_parts:
+            _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second)
+            _sum_parts(acc, y, ym, yq, second)
         new_mass = 0.0
         for r in range(n_states):
             x[r] = y[r]

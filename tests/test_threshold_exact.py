@@ -554,11 +554,13 @@ print(json.dumps([res.probabilities.tolist(), res.mean_response_times.tolist()])
 """
 
 
-def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition():
+@pytest.mark.parametrize("in_parts", [False, True])
+def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_parts):
     # One step of the moment chain from a state whose sum is spread around its reference
     # s_ref with variance delta**2 (no mean deviation): the staying probability is linear
     # in the sum, T(s) = t0 + t1 (s - s_ref), and the next sum is s' = s_next + b (s - s_ref),
     # so the first moment reaching the next state is E[s' T(s)] = s_next t0 + b t1 delta**2.
+    # The same, serially and in parallel parts.
     from mdft import _plane_moment
 
     t0, t1, s_ref, s_next, b, delta = 0.6, 0.05, 10.0, 9.0, 0.9, 1.5
@@ -569,7 +571,8 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition():
     _plane_moment.propagate(
         np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
         np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
-        b, delta**2, x, m, q, rt_pmf, np.zeros((1, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(2))
+        b, delta**2, x, m, q, rt_pmf, np.zeros((1, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(2),
+        in_parts)
     assert x[1] == pytest.approx(t0)
     assert m[1] == pytest.approx(s_next * t0 + b * t1 * delta**2)
 
