@@ -32,9 +32,10 @@ _MIN_CELLS_PER_THETA = 6.0
 _LEVEL_FACTOR = 1.0
 # Largest index box (levels x cells x cells) the builder may allocate.
 _MAX_BOX = 40_000_000
-# Chains with at least this many nonzeros are propagated in parts on numba's threads
-# (mdft._plane_moment.PARTS of them whatever the number of threads, so that the sums are the
-# same on any machine); smaller ones serially, where waking the threads costs more than it saves.
+# With more than one numba thread, chains with at least this many nonzeros are propagated in
+# parts (mdft._plane_moment.PARTS of them whatever the number of threads, so that the sums are
+# the same for any number above one); smaller ones, and all on one thread, serially: waking
+# the threads costs more than it saves, and parts on one thread cost 10-30 % more.
 _PARTS_MIN_NONZEROS = 20_000
 # Cells of work space (8 bytes each) the build's parallel parts may allocate together.
 _PART_WORK_CELLS = 12_000_000
@@ -211,9 +212,10 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     it was filled. ``second`` also carries the second moment of the sum and the
     occupation (a pilot pass); otherwise ``occupation`` is None. ``floor``: mean
     response times of options chosen less often weigh in proportionally.
-    ``in_parts``: run each step in parts on numba's threads (None: for chains of
-    at least ``_PARTS_MIN_NONZEROS`` nonzeros); the answer is the same whatever the
-    number of threads.
+    ``in_parts``: run each step in parts on numba's threads (None: with more than
+    one thread, for chains of at least ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the
+    answer is the same whatever the number of threads, and differs from the serial
+    one by rounding (the parts' sums are added in another order).
     """
     n = chain.n_states
     x = np.zeros(n)
@@ -225,7 +227,7 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     occ = np.zeros((n if second else 1, 3))
     errors = np.zeros(2)
     if in_parts is None:
-        in_parts = chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
+        in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     steps, tail_start, mass = _plane_moment.propagate(
         chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
         chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol, bool(second),

@@ -13,6 +13,13 @@ with the sum, so each of the two evaluations places a cut cell's mass at the
 centroid of the part of the cell inside the region at that sum (the cell's
 centre once it lies wholly inside); the state's own position is that centroid
 at its reference sum.
+
+Both halves run on numba's threads. The build evaluates the sources it has
+discovered, a block at a time, in parallel parts and adds their rows in
+order, so the chain is the same for any number of parts. The propagation of
+a large chain scatters each step in a fixed number of parts into separate
+accumulators and adds those in order, so its answer is the same for any
+number of threads above one.
 """
 
 from __future__ import annotations
@@ -249,18 +256,12 @@ def _place(c1, c2, h1, h2, E, bound, z1, z2):
 
 
 @njit
-def _compact(sA, sB, box, n2, cell, vals_a, vals_b, k0, cap):
+def _compact(sA, sB, box, cell, vals_a, vals_b, k0, cap):
     """Move the cells of ``box`` that either evaluation reached from ``sA``, ``sB`` (zeroed
-    on the way) to ``cell`` (``a * n2 + b``), ``vals_a``, ``vals_b`` from ``k0`` on, in the
-    order the chain stores them; their number, or -1 (nothing moved) when more than ``cap``."""
+    on the way) to ``cell`` (rows ``(a, b)``), ``vals_a``, ``vals_b`` from ``k0`` on, in the
+    order the chain stores them; returns their number, or -1 when there were more than
+    ``cap`` (only the first ``cap`` are written; all are zeroed)."""
     count = 0
-    for a in range(box[0], box[1] + 1):
-        for b in range(box[2], box[3] + 1):
-            if sA[a, b] != 0.0 or sB[a, b] != 0.0:
-                count += 1
-    if count > cap:
-        return -1
-    k = k0
     for a in range(box[0], box[1] + 1):
         for b in range(box[2], box[3] + 1):
             vA = sA[a, b]
@@ -269,11 +270,14 @@ def _compact(sA, sB, box, n2, cell, vals_a, vals_b, k0, cap):
                 continue
             sA[a, b] = 0.0
             sB[a, b] = 0.0
-            cell[k] = a * n2 + b
-            vals_a[k] = vA
-            vals_b[k] = vB
-            k += 1
-    return count
+            if count < cap:
+                k = k0 + count
+                cell[k, 0] = a
+                cell[k, 1] = b
+                vals_a[k] = vA
+                vals_b[k] = vB
+            count += 1
+    return count if count <= cap else -1
 
 
 @njit
@@ -349,12 +353,7 @@ def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd
         s_next[i, 0] = snA
         s_next[i, 1] = snB
         lost[i] = lst
-        counts[i] = _compact(sA, sB, box, n2, cell, vals_a, vals_b, i * cap, cap)
-        if counts[i] < 0:
-            for a in range(box[0], box[1] + 1):
-                for b in range(box[2], box[3] + 1):
-                    sA[a, b] = 0.0
-                    sB[a, b] = 0.0
+        counts[i] = _compact(sA, sB, box, cell, vals_a, vals_b, i * cap, cap)
 
 
 @njit_parallel
@@ -365,14 +364,14 @@ def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exac
     sources dealt in turn to ``work.shape[0]`` parts on numba's threads, each part with its
     own work space. Source ``i``'s cells go to ``cell``, ``vals_a``, ``vals_b`` from
     ``i * cap`` (``counts[i]``; -1 when they did not fit: the caller evaluates it again),
-    its choices to ``absorbed[i]`` and its next sums to ``s_next[i]``. (The parallel loop
-    only calls :func:`_sources_of_part`: a large body in it took numba half a minute more
-    to compile.)"""
+    its choices to ``absorbed[i]`` and its next sums to ``s_next[i]``."""
     for part in prange(work.shape[0]):
-        # (one integer type for the part: numba compiles the body for each it sees)
-        _sources_of_part(np.int64(part), zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact,
-                         theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs,
-                         ends, boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost)
+        # the part as int64: numba compiles the (large) callee once for each integer type
+        # it is called with, and the parallel loop's index comes as int64 and as uint64
+        _sources_of_part(np.int64(part), zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact,
+                         sd_exact, theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho,
+                         work, margs, ends, boxes, cap, cell, vals_a, vals_b, counts, absorbed,
+                         s_next, lost)
 
 
 @njit
@@ -413,7 +412,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     boxes = np.zeros((n_parts, 4), dtype=np.int64)
     # a block's evaluated sources: cells (slots of `slot` entries), choices, next sums
     slot = first_slot
-    blk_cell = np.empty(0, dtype=np.int64)
+    blk_cell = np.empty((0, 2), dtype=np.int32)
     blk_a = np.empty(0)
     blk_b = np.empty(0)
     start_cols = np.empty(0, dtype=np.int64)
@@ -456,7 +455,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 zs[i, 2] = zA2
                 zs[i, 3] = zB2
         if blk_cell.shape[0] < n_blk * slot:
-            blk_cell = np.empty(n_blk * slot, dtype=np.int64)
+            blk_cell = np.empty((n_blk * slot, 2), dtype=np.int32)
             blk_a = np.empty(n_blk * slot)
             blk_b = np.empty(n_blk * slot)
         counts = np.empty(n_blk, dtype=np.int64)
@@ -481,7 +480,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 one_cap = 2 * slot
                 while n_new < 0:
                     one_cap *= 2
-                    one_cell = np.empty(one_cap, dtype=np.int64)
+                    one_cell = np.empty((one_cap, 2), dtype=np.int32)
                     one_a = np.empty(one_cap)
                     one_b = np.empty(one_cap)
                     _sources_in_parts(zs[i:i + 1], s_mid[i:i + 1], dd[i:i + 1], S, E, CM, w,
@@ -517,8 +516,8 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 row_ptr = rp2
             d = dd[i]
             for k in range(k0, k0 + n_new):
-                a = cell[k] // n2
-                b = cell[k] - a * n2
+                a = cell[k, 0]
+                b = cell[k, 1]
                 vA = va[k]
                 vB = vb[k]
                 t = index[a, b]
