@@ -202,3 +202,17 @@ def test_propagation_in_parts_does_not_depend_on_the_threads(seed):
             assert a == b
             assert a == pytest.approx(c, rel=1e-9, abs=1e-14)
     assert runs["one"][0].sum() > 0.5  # the run decides most of the mass
+
+
+def test_benchmark_refuses_fewer_than_one_thread(capsys):
+    """``bench_threshold_exact.py --threads`` names the option and what it got."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_threshold_exact.py"
+    spec = importlib.util.spec_from_file_location("bench_threshold_exact", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    with pytest.raises(SystemExit):
+        bench.main(["--threads", "0", "--ternary", "0", "--binary", "0"])
+    assert "--threads must be at least 1, got 0" in capsys.readouterr().err
