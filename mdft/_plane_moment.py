@@ -30,7 +30,7 @@ import numpy as np
 
 from numba import prange
 
-from ._numba import njit, njit_parallel
+from ._numba import njit, njit_inline, njit_parallel
 from ._plane_tail import WINDOW, check, fill, snapshot
 from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
                      _CUT)
@@ -578,6 +578,22 @@ PARTS = 4
 _BLOCK = 16
 
 
+@njit_inline
+def _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu, q0, second, y, ym, yq):
+    """Add source ``r``'s step to ``y`` (``x``), ``ym`` (``m``) and, with ``second``, ``yq``
+    (``q``). The indices are unsigned: numba then omits the negative-index wraparound on every
+    access, which made this loop (the propagation's whole cost) about 1.5-2 times slower."""
+    for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+        c = np.uint64(cols[k])
+        a0 = t0[k]
+        a1 = t1[k]
+        y[c] += a0 * xr + a1 * u
+        ym[c] += a0 * carry + a1 * cu
+    if second:
+        for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
+            yq[np.uint64(cols[k])] += t0[k] * q0
+
+
 @njit_parallel
 def _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second):
     """One step of the chain in :data:`PARTS` parts run on numba's threads: part ``p``
@@ -598,16 +614,8 @@ def _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second):
                 cu = src[r, 3]
                 if xr == 0.0 and u == 0.0 and carry == 0.0 and cu == 0.0:
                     continue
-                for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
-                    c = np.uint64(cols[k])
-                    a0 = t0[k]
-                    a1 = t1[k]
-                    y[c] += a0 * xr + a1 * u
-                    ym[c] += a0 * carry + a1 * cu
-                if second:
-                    q0 = q0s[r]
-                    for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
-                        yq[np.uint64(cols[k])] += t0[k] * q0
+                _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu,
+                             q0s[r] if second else 0.0, second, y, ym, yq)
 
 
 @njit_parallel
@@ -744,17 +752,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 if second:
                     q0s[r] = q0
                 continue
-            # unsigned indices: numba then omits the negative-index wraparound on every access,
-            # which made this loop (the propagation's whole cost) about 1.5-2 times slower
-            for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
-                c = np.uint64(cols[k])
-                a0 = t0[k]
-                a1 = t1[k]
-                y[c] += a0 * xr + a1 * u
-                ym[c] += a0 * carry + a1 * cu
-            if second:
-                for k in range(np.uint64(row_ptr[r]), np.uint64(row_ptr[r + 1])):
-                    yq[np.uint64(cols[k])] += t0[k] * q0
+            _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu, q0, second, y, ym, yq)
         if in_parts:
             _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second)
             _sum_parts(acc, y, ym, yq, second)
