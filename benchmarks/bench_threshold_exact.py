@@ -12,6 +12,7 @@ per model and then the median and maximum errors and times.
     python benchmarks/bench_threshold_exact.py                        # 20 ternary + 10 binary
     python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
     python benchmarks/bench_threshold_exact.py --ternary 20 --binary 0 --live --cache /tmp/refs
+    python benchmarks/bench_threshold_exact.py --ranges wide --fallback simulation --binary 0
 
 ``--live`` adds a second, screened set of three-option models: draws (from
 another seed) whose simulation leaves more than half the trials undecided
@@ -53,13 +54,25 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import mdft  # noqa: E402
 
 
-def draw_model(rng, n_options):
+RANGES = ("standard", "wide")
+
+
+def draw_model(rng, n_options, ranges="standard"):
+    """A random model and threshold. ``"standard"``: the ranges of the module docstring;
+    ``"wide"``: M uniform on [0, 10], attention Dirichlet(1, ...), phi1 and phi2 uniform on
+    [0, 0.15], beta uniform on [0.5, 25] (sigma2 and theta as in "standard")."""
     n_attributes = int(rng.integers(2, 4))
-    M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
-    w = rng.dirichlet(np.full(n_attributes, 4.0))
-    params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
-                  phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)),
-                  sigma2=float(np.exp(rng.uniform(np.log(0.1), np.log(4.0)))))
+    if ranges == "wide":
+        M = rng.uniform(0.0, 10.0, (n_options, n_attributes))
+        w = rng.dirichlet(np.ones(n_attributes))
+        params = dict(phi1=float(rng.uniform(0.0, 0.15)), phi2=float(rng.uniform(0.0, 0.15)),
+                      beta=float(rng.uniform(0.5, 25.0)))
+    else:
+        M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
+        w = rng.dirichlet(np.full(n_attributes, 4.0))
+        params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
+                      phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)))
+    params["sigma2"] = float(np.exp(rng.uniform(np.log(0.1), np.log(4.0))))
     theta = float(rng.uniform(5.0, 60.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
@@ -122,11 +135,11 @@ def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise")
     return dict(dp=dp, se=se, drt=drt, drt_major=drt_major, res=res, sim=sim), seconds, ""
 
 
-def screened_models(rng, count, trials, max_steps, seed, cache):
+def screened_models(rng, count, trials, max_steps, seed, cache, ranges="standard"):
     """``count`` three-option draws whose simulation decides in at least half the trials."""
     out = []
     while len(out) < count:
-        model, theta = draw_model(rng, 3)
+        model, theta = draw_model(rng, 3, ranges)
         probe = mdft.simulate(model, 2_000, stopping=mdft.Threshold(theta, max_steps=max_steps),
                               rng=seed)
         if probe.p_undecided > 0.6:
@@ -190,6 +203,8 @@ def main(argv=None):
                              "alone; 'simulation': the library's default)")
     parser.add_argument("--cache", default=None,
                         help="directory that stores the simulated references")
+    parser.add_argument("--ranges", choices=RANGES, default="standard",
+                        help="parameter ranges of the draws (see draw_model)")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads of the chain (default: numba's, one per core)")
     args = parser.parse_args(argv)
@@ -207,13 +222,14 @@ def main(argv=None):
             mdft.threshold_probabilities(m, 5.0, max_steps=50)
         except ValueError:
             pass
-    ternary = [(*draw_model(rng, 3), args.seed + k) for k in range(args.ternary)]
-    binary = [(*draw_model(rng, 2), args.seed + args.ternary + k) for k in range(args.binary)]
+    ternary = [(*draw_model(rng, 3, args.ranges), args.seed + k) for k in range(args.ternary)]
+    binary = [(*draw_model(rng, 2, args.ranges), args.seed + args.ternary + k)
+              for k in range(args.binary)]
     if ternary:
         run_set("3 options, unscreened", ternary, 3, args)
     if args.live:
         live = screened_models(np.random.default_rng(args.seed + 1), args.ternary, args.trials,
-                               args.max_steps, args.seed, args.cache)
+                               args.max_steps, args.seed, args.cache, args.ranges)
         run_set("3 options, screened (simulation decides in at least half the trials)", live,
                 3, args)
     if binary:

@@ -610,6 +610,14 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             rt_pmf, mass, n_iter, tail_start, _, tail_err = propagate_moments(
                 chain, steps, solve["tol"], budget, floor=_RT_WEIGHT_FLOOR)
             probs = rt_pmf.sum(axis=0)
+            total = float(probs.sum() + mass)
+            if not abs(total - 1.0) <= tolerances[0]:
+                # the first-order closure in the sum can grow without bound where the slopes
+                # T1 are large and the deliberation long; its answer is then no distribution
+                raise TooManyStates(
+                    f"at resolution {k:.3g} the moment closure of the summed preference is "
+                    f"unstable for this model: the probabilities and the undecided share sum "
+                    f"to {total:.3g}, not 1")
             times = np.arange(1, steps + 1, dtype=np.float64)
             return ThresholdProbabilities(
                 probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,

@@ -204,8 +204,9 @@ def test_propagation_in_parts_does_not_depend_on_the_threads(seed):
     assert runs["one"][0].sum() > 0.5  # the run decides most of the mass
 
 
-def test_benchmark_refuses_fewer_than_one_thread(capsys):
-    """``bench_threshold_exact.py --threads`` names the option and what it got."""
+def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
+    """``bench_threshold_exact.py --threads`` and ``--ranges`` name the option and what
+    they got; the wide ranges draw within their documented bounds."""
     import importlib.util
     from pathlib import Path
 
@@ -216,3 +217,12 @@ def test_benchmark_refuses_fewer_than_one_thread(capsys):
     with pytest.raises(SystemExit):
         bench.main(["--threads", "0", "--ternary", "0", "--binary", "0"])
     assert "--threads must be at least 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["--ranges", "huge", "--ternary", "0", "--binary", "0"])
+    assert "--ranges: invalid choice: 'huge'" in capsys.readouterr().err
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        model, theta = bench.draw_model(rng, 3, "wide")
+        assert np.all((model.M >= 0.0) & (model.M <= 10.0))
+        assert 0.0 <= model.phi1 <= 0.15 and 0.0 <= model.phi2 <= 0.15
+        assert 0.5 <= model.beta <= 25.0 and 0.1 <= model.sigma2 <= 4.0 and 5.0 <= theta <= 60.0

@@ -774,3 +774,15 @@ def test_cut_cell_mass_matches_a_fine_column_sum(mx, my, sx, sy, hx, hy, offset,
     # the column sum's own error is of the order of one column's mass where the integrand jumps;
     # cut_mass leaves out the Gaussian beyond 6.5 standard deviations (below 1e-10)
     assert abs(got - want) <= 2e-5 * full + 1e-10
+
+
+def test_an_unstable_moment_closure_is_refused_with_its_reason():
+    """Two near-identical options, almost no leakage and a long deliberation: the first-order
+    closure in the summed preference grows without bound on this model (a pass's
+    probabilities summed to 1e34). The call refuses and says why, instead of reporting an
+    error estimate of that size."""
+    model = MDFTModel([[4.72, 9.53], [0.32, 0.41], [4.31, 9.96]], [0.462, 0.538],
+                      phi1=0.0584, phi2=0.0694, beta=21.85, sigma2=0.3006)
+    with pytest.raises(ValueError, match="moment closure of the summed preference is "
+                                         "unstable for this model"):
+        threshold_probabilities(model, 41.98, max_steps=3000, fallback="raise")
