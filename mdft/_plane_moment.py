@@ -259,8 +259,8 @@ def _place(c1, c2, h1, h2, E, bound, z1, z2):
 def _compact(sA, sB, box, cell, vals_a, vals_b, k0, cap):
     """Move the cells of ``box`` that either evaluation reached from ``sA``, ``sB`` (zeroed
     on the way) to ``cell`` (rows ``(a, b)``), ``vals_a``, ``vals_b`` from ``k0`` on, in the
-    order the chain stores them; returns their number, or -1 when there were more than
-    ``cap`` (only the first ``cap`` are written; all are zeroed)."""
+    order the chain stores them; returns their number (when it exceeds ``cap``, only the
+    first ``cap`` are written; all are zeroed)."""
     count = 0
     for a in range(box[0], box[1] + 1):
         for b in range(box[2], box[3] + 1):
@@ -277,7 +277,7 @@ def _compact(sA, sB, box, cell, vals_a, vals_b, k0, cap):
                 vals_a[k] = vA
                 vals_b[k] = vB
             count += 1
-    return count if count <= cap else -1
+    return count
 
 
 @njit
@@ -363,7 +363,8 @@ def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exac
     """Both evaluations of each source of a block (``zs[i] = (z1A, z1B, z2A, z2B)``),
     sources dealt in turn to ``work.shape[0]`` parts on numba's threads, each part with its
     own work space. Source ``i``'s cells go to ``cell``, ``vals_a``, ``vals_b`` from
-    ``i * cap`` (``counts[i]``; -1 when they did not fit: the caller evaluates it again),
+    ``i * cap`` (``counts[i]`` of them; more than ``cap`` when they did not fit, and the
+    caller evaluates the source again with that much room),
     its choices to ``absorbed[i]`` and its next sums to ``s_next[i]``."""
     for part in prange(work.shape[0]):
         # the part as int64: numba compiles the (large) callee once for each integer type
@@ -475,25 +476,17 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
             vb = blk_b
             k0 = i * slot
             n_new = counts[i]
-            if n_new < 0:
-                # more cells than the slot: evaluate the source again alone, with more room
-                one_cap = 2 * slot
-                while n_new < 0:
-                    one_cap *= 2
-                    one_cell = np.empty((one_cap, 2), dtype=np.int32)
-                    one_a = np.empty(one_cap)
-                    one_b = np.empty(one_cap)
-                    _sources_in_parts(zs[i:i + 1], s_mid[i:i + 1], dd[i:i + 1], S, E, CM, w,
-                                      shrunk, sd_cell, exact, sd_exact, theta, o1, o2, h1, h2,
-                                      n1, n2, sd_opt, pair_sd, pair_rho, work[:1], margs[:1],
-                                      ends[:1], boxes[:1], one_cap, one_cell, one_a, one_b,
-                                      counts[i:i + 1], absorbed[i:i + 1], s_next[i:i + 1],
-                                      lost[i:i + 1])
-                    n_new = counts[i]
-                cell = one_cell
-                va = one_a
-                vb = one_b
+            if n_new > slot:
+                # more cells than the slot: evaluate the source again alone, with room for all
+                cell = np.empty((n_new, 2), dtype=np.int32)
+                va = np.empty(n_new)
+                vb = np.empty(n_new)
                 k0 = 0
+                _sources_in_parts(zs[i:i + 1], s_mid[i:i + 1], dd[i:i + 1], S, E, CM, w, shrunk,
+                                  sd_cell, exact, sd_exact, theta, o1, o2, h1, h2, n1, n2,
+                                  sd_opt, pair_sd, pair_rho, work[:1], margs[:1], ends[:1],
+                                  boxes[:1], n_new, cell, va, vb, counts[i:i + 1],
+                                  absorbed[i:i + 1], s_next[i:i + 1], lost[i:i + 1])
             widest = max(widest, n_new)
             row_start = n_vals
             # room for the row's nonzeros and new states before the loop over its cells:
