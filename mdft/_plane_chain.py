@@ -37,6 +37,12 @@ _MAX_BOX = 40_000_000
 # the same for any number above one); smaller ones, and all on one thread, serially: waking
 # the threads costs more than it saves, and parts on one thread cost 10-30 % more.
 _PARTS_MIN_NONZEROS = 20_000
+# A finer pass gives rows only to the cells near the states the coarser pass occupied: summed
+# over its steps, at least this much probability, within _NEAR_SD per-step standard deviations
+# and one coarse cell (mdft.threshold_exact rebuilds with every row when more than
+# _ESCAPE_MAX of the mass reaches a state without one).
+_NEAR_OCCUPATION = 1e-14
+_NEAR_SD = 2.0
 # Cells of work space (8 bytes each) the build's parallel parts may allocate together.
 _PART_WORK_CELLS = 12_000_000
 # Room for a source's cells in the build's first block (widened as it meets wider sources).
@@ -146,6 +152,11 @@ class MomentChain:
     h: tuple
     moving: bool
     delta: float
+    #: States without a row (outside ``build_moment_chain``'s ``near``): mass reaching one
+    #: leaves the chain and is counted by :func:`propagate_moments`.
+    frontier: np.ndarray
+    #: Per-step standard deviation of the model's own Gaussian along the two grid axes.
+    step_sd: tuple
     #: The noise is narrower than the cell over sqrt(3) along either axis: the variance
     #: correction then takes width from the attention jumps along it, and answers at this
     #: grid are not trusted (``docs/threshold_exact.md``, section 8).
@@ -163,9 +174,13 @@ def _build_parts(box):
     return int(max(1, min(numba.get_num_threads(), 8, _PART_WORK_CELLS // (3 * box))))
 
 
-def build_moment_chain(model, theta, kappa, ref, delta, max_states):
+def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
     """The moment chain at resolution ``kappa`` with reference sums ``ref`` (see
     :func:`mdft._plane_moment.build`) and spread ``delta``.
+
+    ``near = (points, (r1, r2))``: only the cells within ``r1`` and ``r2`` (along the grid
+    axes) of one of ``points`` (rows ``(z1, z2)``) get rows; the other states reached are
+    frontier states (:class:`MomentChain`). None: every state reached gets its row.
 
     Raises TooManyStates when the reachable states exceed ``max_states`` or a
     step lands outside every cell.
@@ -179,14 +194,21 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
         raise TooManyStates(
             f"resolution {kappa:.3g} needs an index box of {box} cells (limit {_MAX_BOX})"
         )
+    allowed = np.zeros((0, 0), dtype=np.bool_)
+    if near is not None:
+        allowed = np.zeros((g["n1"], g["n2"]), dtype=np.bool_)
+        points, (r1, r2) = near
+        _plane_moment.mark_near(allowed, np.ascontiguousarray(points, dtype=np.float64),
+                                g["o1"], g["o2"], g["h1"], g["h2"], float(r1), float(r2))
     out = _plane_moment.build(
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],
         g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], np.asarray(ref, dtype=np.float64),
         g["s_lo"], g["s_hi"], float(delta), max_states, _build_parts(box), _FIRST_SLOT,
+        allowed,
     )
     (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
-     start_abs, start_snext) = out
+     start_abs, start_snext, frontier) = out
     if status == _plane_moment.TOO_MANY_STATES:
         raise TooManyStates(f"resolution {kappa:.3g} reaches more than {max_states} states")
     if status == _plane_moment.LOST_MASS:
@@ -198,19 +220,22 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states):
     narrow = narrow_axes(g).size > 0
     return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext),
-                       (g["h1"], g["h2"]), moving, float(delta), narrow)
+                       (g["h1"], g["h2"]), moving, float(delta), frontier,
+                       (float(g["sd_exact"][0]), float(g["sd_exact"][1])), narrow)
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
                       in_parts=None):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
-    tail_errors)``.
+    tail_errors, escaped)``.
 
     ``budget = (atol, rtol)``: the change that filling the tail geometrically may
     make to the probabilities and (relative) to the mean response times (0: no
     tail; :mod:`mdft._plane_tail`); ``tail_errors`` is the change estimated where
-    it was filled. ``second`` also carries the second moment of the sum and the
-    occupation (a pilot pass); otherwise ``occupation`` is None. ``floor``: mean
+    it was filled. ``occupation[:, 0]`` is each state's probability summed over the
+    steps; ``second`` also carries the second moment of the sum and its occupation
+    (``occupation[:, 1:]``, a pilot pass). ``escaped``: the mass that reached frontier
+    states and left the chain (:func:`build_moment_chain`'s ``near``). ``floor``: mean
     response times of options chosen less often weigh in proportionally.
     ``in_parts``: run each step in parts on numba's threads (None: with more than
     one thread, for chains of at least ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the
@@ -224,19 +249,30 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     q = x * chain.start_snext**2
     rt_pmf = np.zeros((max_steps, 3))
     rt_pmf[0] = chain.start_absorbed
-    occ = np.zeros((n if second else 1, 3))
-    errors = np.zeros(2)
+    occ = np.zeros((n, 3))
+    errors = np.zeros(3)
     if in_parts is None:
         in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     steps, tail_start, mass = _plane_moment.propagate(
         chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
         chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol, bool(second),
-        float(budget[0]), float(budget[1]), float(floor), errors, bool(in_parts))
+        float(budget[0]), float(budget[1]), float(floor), errors, bool(in_parts),
+        chain.frontier)
     # the linearised choices can dip below zero by rounding-sized amounts where a state's
     # mean sum lies far from its reference; a probability is never negative
     np.maximum(rt_pmf, 0.0, out=rt_pmf)
-    return (rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start),
-            occ if second else None, (float(errors[0]), float(errors[1])))
+    return (rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start), occ,
+            (float(errors[0]), float(errors[1])), float(errors[2]))
+
+
+def near_occupied(chain, occ):
+    """``near`` for the next, finer pass (:func:`build_moment_chain`): the states of
+    ``chain`` whose summed probability over the steps (``occ[:, 0]``) reaches
+    ``_NEAR_OCCUPATION``, and a reach of ``_NEAR_SD`` per-step standard deviations plus
+    one of this chain's cells along each axis."""
+    points = chain.pos[occ[:, 0] >= _NEAR_OCCUPATION]
+    reach = tuple(_NEAR_SD * sd + h for sd, h in zip(chain.step_sd, chain.h))
+    return points, reach
 
 
 def reference_sums(chain, occ):

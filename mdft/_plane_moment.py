@@ -376,9 +376,30 @@ def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exac
 
 
 @njit
+def _cell_of(c, o, h):
+    """Index of the grid cell centred at ``c`` on an axis with first centre ``o``."""
+    return int(round((c - o) / h))
+
+
+@njit
+def mark_near(allowed, pts, o1, o2, h1, h2, r1, r2):
+    """Set ``allowed`` on every cell whose centre lies within ``r1`` (axis 1) and ``r2``
+    (axis 2) of one of the points ``pts`` (rows ``(z1, z2)``)."""
+    n1, n2 = allowed.shape
+    for k in range(pts.shape[0]):
+        a_lo = max(0, int(math.ceil((pts[k, 0] - r1 - o1) / h1)))
+        a_hi = min(n1 - 1, int(math.floor((pts[k, 0] + r1 - o1) / h1)))
+        b_lo = max(0, int(math.ceil((pts[k, 1] - r2 - o2) / h2)))
+        b_hi = min(n2 - 1, int(math.floor((pts[k, 1] + r2 - o2) / h2)))
+        for a in range(a_lo, a_hi + 1):
+            for b in range(b_lo, b_hi + 1):
+                allowed[a, b] = True
+
+
+@njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
           h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states,
-          n_parts, first_slot):
+          n_parts, first_slot, allowed):
     """Discover the reachable cells from the exact start and build the moment chain.
 
     ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
@@ -388,13 +409,18 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     numba's threads and then added in order, so the chain is the same for any
     ``n_parts``. Each source's cells get a slot of ``first_slot`` entries at
     first, widened as wider sources are met (a source that does not fit is
-    evaluated again alone). Returns ``(status, pos, sref, snext, row_ptr, cols, t0, t1,
-    r0, r1, start_cols, start_vals, start_abs, start_snext)``.
+    evaluated again alone). ``allowed`` (``n1 x n2``, or empty for every cell): the cells
+    whose rows are evaluated; a state discovered in another cell is a *frontier* state, with
+    an empty row (its mass leaves the chain, and :func:`propagate` counts it). Returns
+    ``(status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
+    start_abs, start_snext, frontier)``.
     """
     index = np.full((n1, n2), -1, dtype=np.int64)
+    every = allowed.size == 0
     cap = 1024
     pos = np.empty((cap, 2))
     centre = np.empty((cap, 2))
+    frontier = np.zeros(cap, dtype=np.bool_)
     sref = np.empty(cap)
     snext = np.empty(cap)
     n_states = 0
@@ -425,12 +451,21 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     while r < n_states:
         # the block: the start alone, then the sources discovered and not yet evaluated
         r_end = 0 if r < 0 else min(n_states, r + _BLOCK_SOURCES)
-        n_blk = r_end - r
+        # the block's sources to evaluate: those in allowed cells (frontier states are not)
+        srcs = np.empty(r_end - r, dtype=np.int64)
+        n_blk = 0
+        for q in range(r, r_end):
+            if q < 0 or every or allowed[_cell_of(centre[q, 0], o1, h1),
+                                         _cell_of(centre[q, 1], o2, h2)]:
+                srcs[n_blk] = q
+                n_blk += 1
+            else:
+                frontier[q] = True
         zs = np.empty((n_blk, 4))
         s_mid = np.empty(n_blk)
         dd = np.empty(n_blk)
         for i in range(n_blk):
-            q = r + i
+            q = srcs[i]
             if q < 0:
                 z1 = z_start[0]
                 z2 = z_start[1]
@@ -467,8 +502,14 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                           o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
                           boxes, slot, blk_cell, blk_a, blk_b, counts, absorbed, s_next, lost)
         widest = 0
-        for i in range(n_blk):
-            q = r + i
+        i = -1
+        for q in range(r, r_end):
+            if q >= 0 and frontier[q]:
+                # no row: its mass leaves the chain (ab0, ab1 stay zero)
+                row_ptr[q + 1] = n_vals
+                snext[q] = sref[q]
+                continue
+            i += 1
             if lost[i]:
                 status = LOST_MASS
             cell = blk_cell
@@ -500,6 +541,9 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                 cap = _doubled(pos.shape[0], n_states + n_new)
                 pos = _grow(pos, n_states, cap)
                 centre = _grow(centre, n_states, cap)
+                fr2 = np.zeros(cap, dtype=np.bool_)
+                fr2[:n_states] = frontier[:n_states]
+                frontier = fr2
                 ab0 = _grow(ab0, n_states, cap)
                 ab1 = _grow(ab1, n_states, cap)
                 sref = _grow1(sref, n_states, cap)
@@ -561,7 +605,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     return (status, pos[:n_states].copy(), sref[:n_states].copy(), snext[:n_states].copy(),
             row_ptr[:n_states + 1].copy(), cols[:n_vals], t0[:n_vals], t1[:n_vals],
             ab0[:n_states].copy(), ab1[:n_states].copy(), start_cols, start_vals, start_abs,
-            start_snext)
+            start_snext, frontier[:n_states].copy())
 
 
 # Parallel propagation: the rows are dealt to this many parts, in blocks of _BLOCK rows in
@@ -631,7 +675,7 @@ def _sum_parts(acc, y, ym, yq, second):
 
 @njit
 def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q, rt_pmf, occ,
-              tol, second, budget_p, budget_rt, floor, errors, in_parts):
+              tol, second, budget_p, budget_rt, floor, errors, in_parts, frontier):
     """Apply the moment chain step by step (see the module docstring).
 
     With ``in_parts``, each step's scatter runs in :data:`PARTS` parts on numba's threads
@@ -651,7 +695,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     current sum. Stops once the undecided mass is below ``tol``, or, with
     ``budget_p > 0``, once the tail may be filled geometrically with a change
     within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
-    the change is left in ``errors``). Returns ``(steps, tail_start, mass)``.
+    the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
+    :func:`build`) leaves the chain; its sum is left in ``errors[2]``. Where ``occ`` has a
+    row per state, ``occ[:, 0]`` also accumulates ``x`` when not ``second`` (where the next,
+    finer pass may need rows). Returns ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
     n_steps = rt_pmf.shape[0]
@@ -687,6 +734,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
         done_w[i] = rt_pmf[0, i]
     errors[0] = 0.0
     errors[1] = 0.0
+    errors[2] = 0.0
+    escaped = 0.0
+    track = occ.shape[0] == n_states
     mass = 0.0
     for r in range(n_states):
         mass += x[r]
@@ -702,6 +752,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
         if mass < tol:
             errors[0] = dropped
             errors[1] = 0.0
+            errors[2] = escaped
             return steps, n_steps, mass
         for i in range(n_opt):
             rt_pmf[t, i] = 0.0
@@ -717,6 +768,12 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                     q0s[r] = 0.0
             if xr == 0.0 and mr == 0.0:
                 continue
+            if frontier[r]:
+                escaped += abs(xr)
+                x[r] = 0.0
+                m[r] = 0.0
+                q[r] = 0.0
+                continue
             if abs(xr) < cut and abs(mr) < cut * s_scale:
                 dropped += abs(xr)
                 x[r] = 0.0
@@ -731,8 +788,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             carry = sn * xr + b_sum * u
             cu = sn * u + b_sum * dvar * xr
             q0 = 0.0
-            if second:
+            if track:
                 occ[r, 0] += xr
+            if second:
                 occ[r, 1] += mr
                 occ[r, 2] += q[r]
                 v = q[r] - 2.0 * sr * mr + sr * sr * xr
@@ -774,8 +832,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, dist,
                 reach, sigma, dsigma, errors):
             errors[0] += dropped
+            errors[2] = escaped
             return steps, t + 1, fill(rt_pmf, t, mass, min(max(hazard[t], 0.0), 1.0), sigma)
     # no tail was filled: the last check's estimate does not apply
     errors[0] = dropped
     errors[1] = 0.0
+    errors[2] = escaped
     return steps, n_steps, mass

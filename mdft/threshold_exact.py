@@ -29,8 +29,8 @@ import scipy.sparse.linalg as spla
 from . import _lattice
 from ._lattice_chain import build_chain
 from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
-from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, plane_geometry,
-                           propagate_moments, reference_sums, solve_moments)
+from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
+                           plane_geometry, propagate_moments, reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -74,6 +74,9 @@ _RECHECK_SHARE = 0.5
 # Three options: the geometric tail is filled once the change it may make is within this
 # share of atol and rt_rtol (that change is added to the error estimate).
 _TAIL_SHARE = 0.01
+# Three options, "propagate": a pass whose mass reaching states without rows (left out as
+# never occupied by the coarser pass) exceeds this is built again with every row.
+_ESCAPE_MAX = 1e-10
 # Mean response times of options chosen less often than this weigh in proportionally
 # (the simulation fallback weighs its standard errors the same way).
 _RT_WEIGHT_FLOOR = RT_WEIGHT_FLOOR
@@ -585,7 +588,11 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     ``"solve"`` solve the same chains. ``tolerances``: ``(atol, rt_rtol)``.
     """
     kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
-    state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA)
+    state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
+                 near=None)
+    # the occupied region of each pass limits the rows of the next, finer one ("propagate":
+    # the solver of the long run has no step limit, so every reachable state may matter)
+    limit = solve["method"] == "propagate"
 
     # the change the extrapolated tail may make: a share of the tolerances (0: no tail)
     budget = (0.0, 0.0) if solve["tail_tol"] == 0.0 else tuple(_TAIL_SHARE * t for t in tolerances)
@@ -597,18 +604,30 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             occ = propagate_moments(chain, _PILOT_STEPS, 1e-6, budget, second=True,
                                     floor=_RT_WEIGHT_FLOOR)[4]
             state["ref"], state["delta"] = reference_sums(chain, occ)
+        if limit:
+            state["near"] = near_occupied(chain, occ)
 
     def run(k, delta):
-        chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
+        chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
+                                   state["near"])
+        if solve["method"] == "propagate":
+            steps = solve["max_steps"]
+            out = propagate_moments(chain, steps, solve["tol"], budget, floor=_RT_WEIGHT_FLOOR)
+            if out[6] > _ESCAPE_MAX:
+                # the coarser pass did not foresee where the mass goes: every row after all
+                logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
+                             "building every row", k, out[6])
+                chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
+                out = propagate_moments(chain, steps, solve["tol"], budget,
+                                        floor=_RT_WEIGHT_FLOOR)
+            rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
+            state["near"] = near_occupied(chain, occ)
         closure["narrow"] = chain.narrow
         closure["nonzeros"] = chain.cols.shape[0]
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
                       spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
                       engine="plane", resolution=float(k))
         if solve["method"] == "propagate":
-            steps = solve["max_steps"]
-            rt_pmf, mass, n_iter, tail_start, _, tail_err = propagate_moments(
-                chain, steps, solve["tol"], budget, floor=_RT_WEIGHT_FLOOR)
             probs = rt_pmf.sum(axis=0)
             total = float(probs.sum() + mass)
             if not abs(total - 1.0) <= tolerances[0]:
@@ -624,7 +643,8 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 mean_response_times=_mean_rt(times @ rt_pmf, probs), max_steps=steps,
                 method="propagate", n_iter=n_iter, converged=True,
                 tail_start=tail_start if tail_start < steps else None,
-                error_probabilities=tail_err[0], error_mean_rt=tail_err[1], **common)
+                error_probabilities=tail_err[0] + escaped, error_mean_rt=tail_err[1],
+                **common)
         probs, weighted, n_iter, ok = solve_moments(chain, solve["tol"], solve["max_iter"],
                                                     _krylov)
         if not ok:

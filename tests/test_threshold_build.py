@@ -7,6 +7,7 @@ cut, small inputs as tuples): each helper is checked for exact equality with the
 formula on random inputs, and a built chain for conservation of every row's mass.
 """
 
+import logging
 import math
 
 import numpy as np
@@ -226,3 +227,75 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
         assert np.all((model.M >= 0.0) & (model.M <= 10.0))
         assert 0.0 <= model.phi1 <= 0.15 and 0.0 <= model.phi2 <= 0.15
         assert 0.5 <= model.beta <= 25.0 and 0.1 <= model.sigma2 <= 4.0 and 5.0 <= theta <= 60.0
+
+
+def _one_sided_model():
+    """A model that mostly chooses its first option: the finer pass need not build rows
+    for the cells behind the start, which the walks never reach."""
+    model = MDFTModel([[4.0, 1.0], [1.0, 4.0], [1.0, 1.0]], [0.6, 0.4], phi1=0.03, phi2=0.06,
+                      beta=5.0, sigma2=0.4)
+    return model, 14.0
+
+
+def test_rows_near_the_occupied_region_give_the_full_chains_answer():
+    """Built with rows only near the states a coarser pass occupied, the chain has fewer
+    nonzeros, loses no measurable mass to its frontier states, and gives the answer of the
+    chain with every row."""
+    from mdft._plane_chain import near_occupied, propagate_moments
+
+    model, theta = _one_sided_model()
+    ref = np.array([0.0, 0.0, 0.0])
+    coarse = build_moment_chain(model, theta, 1.41, ref, 0.4, 60_000)
+    occupied = propagate_moments(coarse, 400, 1e-10, (1e-3, 3e-3))[4]
+    full = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000)
+    near = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000,
+                              near_occupied(coarse, occupied))
+    assert not full.frontier.any()
+    assert near.frontier.sum() > 20
+    assert near.cols.shape[0] < 0.8 * full.cols.shape[0]
+    a = propagate_moments(full, 400, 1e-10, (1e-3, 3e-3))
+    b = propagate_moments(near, 400, 1e-10, (1e-3, 3e-3))
+    assert a[6] == 0.0 and b[6] < 1e-15
+    np.testing.assert_allclose(b[0], a[0], rtol=0.0, atol=1e-13)
+    assert b[1] == pytest.approx(a[1], abs=1e-13)
+    assert a[0].sum() > 0.99  # the run decides its mass
+
+
+def test_mass_reaching_a_frontier_state_leaves_and_is_counted():
+    """With rows only around the start, most of the mass reaches frontier states: it leaves
+    the chain, and the choices, the undecided mass and the escaped mass still sum to one."""
+    from mdft._plane_chain import propagate_moments
+
+    model, theta = _one_sided_model()
+    ref = np.array([0.0, 0.0, 0.0])
+    full = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000)
+    start = full.pos[:1]
+    tight = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000, (start, full.h))
+    assert tight.frontier.sum() > 0.5 * tight.n_states
+    rt_pmf, undecided, _, _, _, _, escaped = propagate_moments(tight, 400, 1e-10)
+    assert escaped > 0.1
+    assert rt_pmf.sum() + undecided + escaped == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_pass_whose_mass_escapes_its_rows_is_built_again_with_every_row(monkeypatch, caplog):
+    """``threshold_probabilities`` rebuilds a pass with every row when more than
+    ``_ESCAPE_MAX`` of its mass reached states without one: forcing a region that holds only
+    the start gives, bit for bit, the answer of a call that builds every row throughout."""
+    import mdft
+    from mdft import threshold_exact
+
+    model, theta = _one_sided_model()
+    answers = []
+    for near in (lambda chain, occ: None,
+                 lambda chain, occ: (chain.pos[:1], (0.1 * chain.h[0], 0.1 * chain.h[1]))):
+        monkeypatch.setattr(threshold_exact, "near_occupied", near)
+        caplog.clear()
+        with caplog.at_level(logging.DEBUG, logger="mdft.threshold_exact"):
+            answers.append(mdft.threshold_probabilities(model, theta, max_steps=1000,
+                                                        fallback="raise"))
+        answers.append("building every row" in caplog.text)
+    full, full_rebuilt, rebuilt, rebuilt_rebuilt = answers
+    assert not full_rebuilt and rebuilt_rebuilt
+    np.testing.assert_array_equal(rebuilt.rt_pmf, full.rt_pmf)
+    assert rebuilt.n_states == full.n_states
+    assert rebuilt.error_probabilities == full.error_probabilities
