@@ -696,9 +696,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     ``budget_p > 0``, once the tail may be filled geometrically with a change
     within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
     the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
-    :func:`build`) leaves the chain; its sum is left in ``errors[2]``. Where ``occ`` has a
-    row per state, ``occ[:, 0]`` also accumulates ``x`` when not ``second`` (where the next,
-    finer pass may need rows). Returns ``(steps, tail_start, mass)``.
+    :func:`build`) leaves the chain; its sum is left in ``errors[2]``. ``occ[:, 0]``
+    accumulates ``x`` over the steps (where the next, finer pass needs rows). Returns
+    ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
     n_steps = rt_pmf.shape[0]
@@ -736,7 +736,6 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     errors[1] = 0.0
     errors[2] = 0.0
     escaped = 0.0
-    track = occ.shape[0] == n_states
     mass = 0.0
     for r in range(n_states):
         mass += x[r]
@@ -788,8 +787,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             carry = sn * xr + b_sum * u
             cu = sn * u + b_sum * dvar * xr
             q0 = 0.0
-            if track:
-                occ[r, 0] += xr
+            occ[r, 0] += xr
             if second:
                 occ[r, 1] += mr
                 occ[r, 2] += q[r]

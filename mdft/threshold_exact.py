@@ -608,20 +608,22 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             state["near"] = near_occupied(chain, occ)
 
     def run(k, delta):
-        chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                   state["near"])
         if solve["method"] == "propagate":
             steps = solve["max_steps"]
-            out = propagate_moments(chain, steps, solve["tol"], budget, floor=_RT_WEIGHT_FLOOR)
-            if out[6] > _ESCAPE_MAX:
+            for near in (state["near"], None):
+                chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
+                                           near)
+                out = propagate_moments(chain, steps, solve["tol"], budget,
+                                        floor=_RT_WEIGHT_FLOOR)
+                if near is None or out[6] <= _ESCAPE_MAX:
+                    break
                 # the coarser pass did not foresee where the mass goes: every row after all
                 logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
                              "building every row", k, out[6])
-                chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
-                out = propagate_moments(chain, steps, solve["tol"], budget,
-                                        floor=_RT_WEIGHT_FLOOR)
             rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
             state["near"] = near_occupied(chain, occ)
+        else:
+            chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
         closure["narrow"] = chain.narrow
         closure["nonzeros"] = chain.cols.shape[0]
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
