@@ -19,8 +19,12 @@ import numpy as np
 
 from ._numba import njit
 
-# Window (steps) over which the drift of the hazard and the shares is measured.
+# Window (steps) over which the drift of the hazard and the shares is measured first.
 WINDOW = 25
+# A drift that is not geometric over WINDOW steps is measured again over windows doubled up
+# to this many times: a slow next mode (a ratio per step near 1) shrinks by less than
+# _MAX_RATIO over 25 steps, and would otherwise never let the tail be filled.
+_DOUBLINGS = 5
 # A drift that shrinks by less than this factor from one window to the next is not yet
 # geometric: no estimate (the tail is not filled).
 _MAX_RATIO = 0.95
@@ -150,6 +154,37 @@ def _settling(d0, d1, d2):
 
 
 @njit
+def _share(rt_pmf, u, i):
+    """Option ``i``'s share of the choices at row ``u`` (equal shares where there are none)."""
+    n = rt_pmf.shape[1]
+    total = 0.0
+    for j in range(n):
+        total += max(rt_pmf[u, j], 0.0)
+    return max(rt_pmf[u, i], 0.0) / total if total > 0.0 else 1.0 / n
+
+
+@njit
+def _hazard_drift(hazard, t):
+    """:func:`drift` of the hazard seen at ``t`` and three times a window before it, over
+    the shortest window (``WINDOW`` doubled up to ``_DOUBLINGS`` times, within ``t``) over
+    which its changes shrink geometrically; -1 when over none."""
+    for k in range(_DOUBLINGS + 1):
+        wk = WINDOW << k
+        if t < 3 * wk + 1:
+            break
+        v0 = hazard[t - 3 * wk]
+        v1 = hazard[t - 2 * wk]
+        v2 = hazard[t - wk]
+        # a hazard of exactly 0 may be mass that has not reached the thresholds yet
+        if v0 == 0.0 or v1 == 0.0 or v2 == 0.0 or hazard[t] == 0.0:
+            return -1.0
+        d = drift(v0, v1, v2, hazard[t])
+        if d >= 0.0:
+            return d
+    return -1.0
+
+
+@njit
 def check(rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, dist, reach,
           sigma, dsigma, errors):
     """Whether the tail after row ``t`` may be filled now: the drift of the hazard
@@ -163,14 +198,7 @@ def check(rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, d
     if t < 3 * w + 1:
         return False
     n = rt_pmf.shape[1]
-    dh = -1.0
-    nonzero = True
-    for k in range(4):
-        # a hazard of exactly 0 may be mass that has not reached the thresholds yet
-        if hazard[t - k * w] == 0.0:
-            nonzero = False
-    if nonzero:
-        dh = drift(hazard[t - 3 * w], hazard[t - 2 * w], hazard[t - w], hazard[t])
+    dh = _hazard_drift(hazard, t)
     if dh < 0.0:
         # the hazard is at the level of rounding, or still moving: has the mass settled?
         gx = _settling(dist[0, 0], dist[1, 0], dist[2, 0])
@@ -178,19 +206,22 @@ def check(rt_pmf, hazard, t, mass, done_p, done_w, budget_p, budget_rt, floor, d
         if gx < 0.0 or gm < 0.0:
             return False
         dh = reach[0] * gx + reach[1] * gm + abs(hazard[t])
-    shares = np.zeros((4, n))
-    for k in range(4):
-        u = t - (3 - k) * w
-        total = 0.0
-        for i in range(n):
-            total += max(rt_pmf[u, i], 0.0)
-        for i in range(n):
-            shares[k, i] = max(rt_pmf[u, i], 0.0) / total if total > 0.0 else 1.0 / n
     for i in range(n):
-        sigma[i] = shares[3, i]
-        d = drift(shares[0, i], shares[1, i], shares[2, i], shares[3, i])
-        # a share that does not settle geometrically may still be anything in [0, 1]
-        dsigma[i] = d if d >= 0.0 else 1.0
+        sigma[i] = _share(rt_pmf, t, i)
+        dsigma[i] = -1.0
+    for k in range(_DOUBLINGS + 1):
+        wk = w << k
+        if t < 3 * wk + 1:
+            break
+        for i in range(n):
+            if dsigma[i] < 0.0:
+                dsigma[i] = drift(_share(rt_pmf, t - 3 * wk, i), _share(rt_pmf, t - 2 * wk, i),
+                                  _share(rt_pmf, t - wk, i), sigma[i])
+    for i in range(n):
+        # a share that does not settle geometrically over any window may still be anything
+        # in [0, 1]
+        if dsigma[i] < 0.0:
+            dsigma[i] = 1.0
     n_rows = rt_pmf.shape[0] - 1 - t
     err_p, err_rt = tail_error(mass, max(hazard[t], 0.0), dh, sigma, dsigma, done_p, done_w,
                                n_rows, t, floor)
