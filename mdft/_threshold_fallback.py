@@ -45,21 +45,39 @@ def _errors(counts, n_undecided, sums, squares):
     return err_p, err_rt
 
 
-def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):
-    """Simulated steps that :func:`simulated_answer` would need for a model whose answer is
-    about known.
+def predicted_trials(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):
+    """Trials that :func:`simulated_answer` would simulate for a model whose answer is about
+    known, and their mean number of steps: ``(trials, steps_per_trial)``.
 
     The errors of its stopping rule (:func:`_errors`) are computed for a notional number of
     trials from the probabilities and the response-time distribution (``rt_pmf``, steps by
     options); they shrink as one over the square root of the trials, which gives the trials
-    needed, times the mean number of steps per trial.
+    needed.
     """
     times = np.arange(1, rt_pmf.shape[0] + 1, dtype=np.float64)
     n = 1e9
     err_p, err_rt = _errors(n * probabilities, n * p_undecided, n * (times @ rt_pmf),
                             n * ((times**2) @ rt_pmf))
     trials = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2), FIRST_BATCH)
-    return trials * (float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps)
+    return trials, float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps
+
+
+def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):
+    """Simulated steps (trials times steps per trial) of :func:`predicted_trials`."""
+    trials, per_trial = predicted_trials(max_steps, probabilities, p_undecided, rt_pmf, atol,
+                                         rt_rtol)
+    return trials * per_trial
+
+
+def over_budget(reason, trials, per_trial, how=""):
+    """The error raised when simulating to the tolerances would exceed :data:`MAX_WORK`."""
+    return ValueError(
+        f"threshold_probabilities cannot vouch for this model: the chain refused "
+        f"({reason}), and its simulation fallback would need about {trials:.3g} trials "
+        f"of {per_trial:.0f} steps on average{how}, more than its budget of {MAX_WORK:.3g} "
+        f"trial-steps. Raise atol or rt_rtol, or run mdft.simulate(model, n_samples, "
+        f"stopping=mdft.Threshold(theta)) for as long as you can afford"
+    )
 
 
 def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result):
@@ -98,13 +116,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
         need = n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1
         per_trial = work / n
         if need * per_trial > MAX_WORK:
-            raise ValueError(
-                f"threshold_probabilities cannot vouch for this model: the chain refused "
-                f"({reason}), and its simulation fallback would need about {need:.3g} trials "
-                f"of {per_trial:.0f} steps on average, more than its budget of {MAX_WORK:.3g} "
-                f"trial-steps. Raise atol or rt_rtol, or run mdft.simulate(model, n_samples, "
-                f"stopping=mdft.Threshold(theta)) for as long as you can afford"
-            )
+            raise over_budget(reason, need, per_trial)
         batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_rt = np.where(counts > 0, sums / np.where(counts > 0, counts, 1), np.nan)

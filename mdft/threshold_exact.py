@@ -28,7 +28,9 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
-from ._threshold_fallback import RT_WEIGHT_FLOOR, predicted_work, simulated_answer
+from . import _threshold_fallback
+from ._threshold_fallback import (RT_WEIGHT_FLOOR, over_budget, predicted_trials, predicted_work,
+                                  simulated_answer)
 from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
                            plane_geometry, propagate_moments, reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
@@ -62,6 +64,10 @@ _FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
 # than the next refinement.
 _BUILD_WORK = 100.0
 _SIM_STEP_WORK = 10.0
+# The fallback refuses without simulating where the chain's last answer predicts more than
+# this many times its work budget (the prediction is about right; at the budget itself, the
+# fallback's own first batch decides).
+_PREDICTED_OVER = 2.0
 # Three options: spread of the summed preference within a state assumed by the pilot pass,
 # and the pilot's step limit (its occupation only fits the reference sums).
 _PILOT_DELTA = 0.5
@@ -499,9 +505,18 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                   f"{err_rt:.2g} relative in the mean response times (rt_rtol={rt_rtol:g}) "
                   f"at {fine.n_states} states")
     if fallback == "simulation" and method == "propagate":
+        reason = f"within max_states={max_states}: {reason}"
+        if fine is not None:
+            # the chain's last answer tells about how much simulating would take: far over
+            # the budget, say so now instead of after a first batch of trials
+            trials, per_trial = predicted_trials(max_steps, fine.probabilities,
+                                                 fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
+            if trials * per_trial > _PREDICTED_OVER * _threshold_fallback.MAX_WORK:
+                raise over_budget(reason, trials, per_trial,
+                                  f" (predicted from the chain's answer at {fine.n_states} "
+                                  "states)")
         logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
-        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng,
-                                f"within max_states={max_states}: {reason}",
+        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
                                 partial(_simulated_result, theta=theta, max_steps=max_steps))
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="

@@ -314,6 +314,33 @@ def test_simulation_answers_when_it_costs_less_than_a_finer_grid(monkeypatch):
     assert res.engine == "plane" and res.resolution < 1.0
 
 
+def test_fallback_far_over_its_budget_refuses_without_simulating(monkeypatch):
+    # where the chain's last answer predicts more than twice the fallback's work budget, the
+    # call refuses at once and says so; no trial is simulated
+    from mdft import _threshold_fallback as fb
+
+    model = canonical(SETS["compromise"])
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 0.0)  # hand over after one pair
+    monkeypatch.setattr(threshold_exact, "_FIRST_PAIR_FACTOR", 1e6)
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("the fallback simulated")
+
+    monkeypatch.setattr(fb, "simulate", no_simulation)
+    monkeypatch.setattr(fb, "MAX_WORK", 1e5)
+    with pytest.raises(ValueError, match=r"the chain refused \(.*\), and its simulation "
+                                         r"fallback would need .* \(predicted from the "
+                                         r"chain's answer at \d+ states\).*Raise atol"):
+        threshold_probabilities(model, 6.0, atol=0.004, rt_rtol=0.01)
+    # near the budget the fallback's own first batch decides, as before
+    exact = threshold_probabilities(model, 6.0, fallback="raise", atol=0.004, rt_rtol=0.01)
+    work = fb.predicted_work(exact.max_steps, exact.probabilities, exact.p_undecided,
+                             exact.rt_pmf, 0.004, 0.01)
+    monkeypatch.setattr(fb, "MAX_WORK", 0.6 * work)
+    with pytest.raises(AssertionError, match="simulated"):
+        threshold_probabilities(model, 6.0, atol=0.004, rt_rtol=0.01)
+
+
 def test_predicted_simulation_work_matches_what_the_fallback_uses():
     # the trials the fallback ends up simulating (three standard errors within the
     # tolerances) are those predicted from the answer, within the growth of its batches
