@@ -60,10 +60,11 @@ _MAX_REFINEMENTS = 4
 _FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
-# with benchmarks/bench_threshold_exact.py); the fallback simulates when that costs less
-# than the next refinement.
-_BUILD_WORK = 100.0
-_SIM_STEP_WORK = 10.0
+# with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 30, building
+# a nonzero about 150, 100-340 from chain to chain); the fallback simulates when that
+# costs less than the next refinement.
+_BUILD_WORK = 150.0
+_SIM_STEP_WORK = 30.0
 # The fallback refuses without simulating where the chain's last answer predicts more than
 # this many times its work budget (the prediction is about right; at the budget itself, the
 # fallback's own first batch decides).
@@ -653,7 +654,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 raise TooManyStates(
                     f"at resolution {k:.3g} the moment closure of the summed preference is "
                     f"unstable for this model: the probabilities and the undecided share sum "
-                    f"to {total:.3g}, not 1")
+                    f"to 1 {total - 1.0:+.2g}")
             times = np.arange(1, steps + 1, dtype=np.float64)
             return ThresholdProbabilities(
                 probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,

@@ -229,6 +229,33 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
         assert 0.5 <= model.beta <= 25.0 and 0.1 <= model.sigma2 <= 4.0 and 5.0 <= theta <= 60.0
 
 
+def test_work_benchmark_measures_the_three_units(capsys):
+    """``bench_threshold_work.py`` prints the propagated nonzero-step, the built nonzero and
+    the simulated trial-step that the fallback's choice counts in, and names bad options."""
+    import importlib.util
+    import re
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_threshold_work.py"
+    spec = importlib.util.spec_from_file_location("bench_threshold_work", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    bench.main(["--models", "1", "--trials", "200", "--max-steps", "200",
+                "--resolutions", "1.4"])
+    out = capsys.readouterr().out
+    step = re.search(r"propagated nonzero-step: median ([0-9.]+) ns", out)
+    build = re.search(r"built nonzero: median ([0-9.]+) units", out)
+    sim = re.search(r"simulated trial-step: median ([0-9.]+) ns = ([0-9.]+) units", out)
+    assert step and build and sim, out
+    assert float(step.group(1)) > 0 and float(build.group(1)) > 0 and float(sim.group(2)) > 0
+    with pytest.raises(SystemExit):
+        bench.main(["--models", "0"])
+    assert "--models must be at least 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["--resolutions", "5"])
+    assert "--resolutions must lie in [0.3, 2], got [5.0]" in capsys.readouterr().err
+
+
 def _one_sided_model():
     """A model that mostly chooses its first option: the finer pass need not build rows
     for the cells behind the start, which the walks never reach."""
