@@ -215,13 +215,9 @@ def main(argv=None):
     rng = np.random.default_rng(args.seed)
     print(f"load average {os.getloadavg()[0]:.2f}; {args.trials} simulated trials per model; "
           f"max_steps={args.max_steps}; {numba.get_num_threads()} numba threads")
-    # compile outside the timings
-    warm, th = draw_model(np.random.default_rng(0), 3)
-    for m in (warm, draw_model(np.random.default_rng(0), 2)[0]):
-        try:
-            mdft.threshold_probabilities(m, 5.0, max_steps=50)
-        except ValueError:
-            pass
+    # compile outside the timings: the chain's kernels and the simulation's (which the
+    # fallback uses; otherwise the first model it answers would carry their compilation)
+    mdft.warmup()
     ternary = [(*draw_model(rng, 3, args.ranges), args.seed + k) for k in range(args.ternary)]
     binary = [(*draw_model(rng, 2, args.ranges), args.seed + args.ternary + k)
               for k in range(args.binary)]
