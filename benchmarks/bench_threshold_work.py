@@ -31,18 +31,16 @@ import numpy as np
 
 import mdft
 from mdft import _plane_moment
-from mdft._plane_chain import build_moment_chain, propagate_moments
+from mdft._plane_chain import _PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_threshold_exact import draw_model  # noqa: E402
-
-_PARTS_MIN = 20_000  # as mdft._plane_chain: chains this large propagate in parts
 
 
 def occupied_step_seconds(chain, steps=60, repeats=2):
     """Best wall time of one propagated step with every state holding probability."""
     n = chain.n_states
-    in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN
+    in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     best = np.inf
     for _ in range(repeats):
         x = np.full(n, 1.0 / n)

@@ -20,6 +20,10 @@ from .simulate import Threshold, simulate
 #: First batch of trials, and the largest number of trials times mean decision steps.
 FIRST_BATCH = 100_000
 MAX_WORK = 2_000_000_000
+#: The fallback refuses without simulating where the chain's last answer predicts more than
+#: this many times MAX_WORK (the prediction is about right; near the budget itself, the first
+#: batch of trials decides).
+PREDICTED_OVER = 2.0
 #: Options chosen less often than this weigh in on the mean-time error with p / this.
 RT_WEIGHT_FLOOR = 0.01
 #: Seed of the fallback's trials when the caller gives none (so calls are repeatable).
@@ -67,6 +71,16 @@ def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol)
     trials, per_trial = predicted_trials(max_steps, probabilities, p_undecided, rt_pmf, atol,
                                          rt_rtol)
     return trials * per_trial
+
+
+def refuse_if_far_over_budget(reason, max_steps, answer, atol, rt_rtol):
+    """Raise at once (without simulating) where ``answer``, the chain's last result, predicts
+    more than :data:`PREDICTED_OVER` times :data:`MAX_WORK` trial-steps; otherwise nothing."""
+    trials, per_trial = predicted_trials(max_steps, answer.probabilities, answer.p_undecided,
+                                         answer.rt_pmf, atol, rt_rtol)
+    if trials * per_trial > PREDICTED_OVER * MAX_WORK:
+        raise over_budget(reason, trials, per_trial,
+                          f" (predicted from the chain's answer at {answer.n_states} states)")
 
 
 def over_budget(reason, trials, per_trial, how=""):

@@ -28,8 +28,7 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
-from . import _threshold_fallback
-from ._threshold_fallback import (RT_WEIGHT_FLOOR, over_budget, predicted_trials, predicted_work,
+from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
                            plane_geometry, propagate_moments, reference_sums, solve_moments)
@@ -65,10 +64,6 @@ _FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
 # costs less than the next refinement.
 _BUILD_WORK = 150.0
 _SIM_STEP_WORK = 30.0
-# The fallback refuses without simulating where the chain's last answer predicts more than
-# this many times its work budget (the prediction is about right; at the budget itself, the
-# fallback's own first batch decides).
-_PREDICTED_OVER = 2.0
 # Three options: spread of the summed preference within a state assumed by the pilot pass,
 # and the pilot's step limit (its occupation only fits the reference sums).
 _PILOT_DELTA = 0.5
@@ -510,12 +505,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if fine is not None:
             # the chain's last answer tells about how much simulating would take: far over
             # the budget, say so now instead of after a first batch of trials
-            trials, per_trial = predicted_trials(max_steps, fine.probabilities,
-                                                 fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
-            if trials * per_trial > _PREDICTED_OVER * _threshold_fallback.MAX_WORK:
-                raise over_budget(reason, trials, per_trial,
-                                  f" (predicted from the chain's answer at {fine.n_states} "
-                                  "states)")
+            refuse_if_far_over_budget(reason, max_steps, fine, atol, rt_rtol)
         logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
         return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
                                 partial(_simulated_result, theta=theta, max_steps=max_steps))
