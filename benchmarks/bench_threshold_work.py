@@ -53,7 +53,9 @@ def occupied_step_seconds(chain, steps=60, repeats=2):
         _plane_moment.propagate(chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0,
                                 chain.r1, chain.sref, chain.snext, chain.b_sum,
                                 chain.delta**2, x, m, q, rt_pmf, occ, 0.0, False, 0.0, 0.0,
-                                0.01, errors, in_parts, chain.frontier)
+                                0.01, errors, in_parts, chain.frontier, steps, 1,
+                                np.zeros(steps), np.zeros((2, 3)), np.zeros((2, n)),
+                                np.full((3, 2), -1.0))
         best = min(best, (time.perf_counter() - start) / (steps - 1))
     return best
 

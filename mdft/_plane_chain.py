@@ -20,6 +20,7 @@ import scipy.sparse as sp
 
 from . import _plane_moment
 from ._lattice_chain import pair_parameters, sum_bounds, sum_is_constant
+from ._plane_krylov import krylov_tail
 
 logger = logging.getLogger(__name__)
 
@@ -47,6 +48,12 @@ _NEAR_SD = 2.0
 _PART_WORK_CELLS = 12_000_000
 # Room for a source's cells in the build's first block (widened as it meets wider sources).
 _FIRST_SLOT = 256
+# A pass first tries the Krylov tail (mdft._plane_krylov) after this many steps, then after
+# every doubling of them, with Krylov spaces of at most these dimensions in turn (a try
+# that fails costs them; in between, the geometric tail goes on being checked).
+_KRYLOV_FIRST = 250
+_KRYLOV_DIMS = (60, 100, 120)
+_KRYLOV_PARTS_MIN_NONZEROS = 1_000_000
 
 
 class TooManyStates(ValueError):
@@ -225,22 +232,24 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
-                      in_parts=None):
+                      in_parts=None, krylov=True):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
     tail_errors, escaped)``.
 
-    ``budget = (atol, rtol)``: the change that filling the tail geometrically may
-    make to the probabilities and (relative) to the mean response times (0: no
-    tail; :mod:`mdft._plane_tail`); ``tail_errors`` is the change estimated where
-    it was filled. ``occupation[:, 0]`` is each state's probability summed over the
-    steps; ``second`` also carries the second moment of the sum and its occupation
-    (``occupation[:, 1:]``, a pilot pass). ``escaped``: the mass that reached frontier
-    states and left the chain (:func:`build_moment_chain`'s ``near``). ``floor``: mean
-    response times of options chosen less often weigh in proportionally.
-    ``in_parts``: run each step in parts on numba's threads (None: with more than
-    one thread, for chains of at least ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the
-    answer is the same whatever the number of threads, and differs from the serial
-    one by rounding (the parts' sums are added in another order).
+    ``budget = (atol, rtol)``: the change that filling the tail (geometrically, or from a
+    Krylov space: :mod:`mdft._plane_krylov`) may make to the probabilities and (relative)
+    to the mean response times (0: no tail; :mod:`mdft._plane_tail`); ``tail_errors`` is
+    the change estimated where it was filled. ``occupation[:, 0]`` is each state's
+    probability summed over the steps; ``second`` also carries the second moment of the
+    sum and its occupation (``occupation[:, 1:]``, a pilot pass, which fills no Krylov
+    tail). ``escaped``: the mass that reached frontier states and left the chain
+    (:func:`build_moment_chain`'s ``near``). ``floor``: mean response times of options
+    chosen less often weigh in proportionally. ``in_parts``: run each step in parts on
+    numba's threads (None: with more than one thread, for chains of at least
+    ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the answer is the same whatever the
+    number of threads, and differs from the serial one by rounding (the parts' sums are
+    added in another order). ``krylov``: try the Krylov tail after ``_KRYLOV_FIRST`` steps,
+    and after every doubling of them, until it is within the budget.
     """
     n = chain.n_states
     x = np.zeros(n)
@@ -253,11 +262,37 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     errors = np.zeros(3)
     if in_parts is None:
         in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
-    steps, tail_start, mass = _plane_moment.propagate(
-        chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
-        chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol, bool(second),
-        float(budget[0]), float(budget[1]), float(floor), errors, bool(in_parts),
-        chain.frontier)
+    use_krylov = krylov and not second and budget[0] > 0.0
+    pause, tries = (_KRYLOV_FIRST, 0) if use_krylov else (max_steps, 0)
+    # the tail's checks, carried across the pauses
+    track = (np.zeros(max_steps), np.zeros((2, 3)), np.zeros((2, n)), np.full((3, 2), -1.0))
+    t_first = 1
+    dropped = escaped = 0.0
+    while True:
+        steps, tail_start, mass = _plane_moment.propagate(
+            chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
+            chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol,
+            bool(second), float(budget[0]), float(budget[1]), float(floor), errors,
+            bool(in_parts), chain.frontier, pause, t_first, *track)
+        escaped += errors[2]
+        dropped += errors[0]  # with the geometric tail's change, if it was filled
+        if tail_start < max_steps or steps >= max_steps or mass < tol:
+            errors[0] = dropped
+            break
+        # between the Krylov steps the threads go idle, and waking them costs more than
+        # running the parts saves below _KRYLOV_PARTS_MIN_NONZEROS
+        tail = krylov_tail(chain, x, m, pause, rt_pmf, budget, floor,
+                           in_parts and chain.cols.shape[0] >= _KRYLOV_PARTS_MIN_NONZEROS,
+                           _KRYLOV_DIMS[min(tries, len(_KRYLOV_DIMS) - 1)])
+        if tail is not None:
+            mass, occupation, lost, (err_p, err_rt), dim = tail
+            occ[:, 0] += occupation
+            escaped += lost
+            errors[:2] = (dropped + err_p, err_rt)
+            steps, tail_start = pause + dim, pause
+            break
+        t_first, pause, tries = pause, min(2 * pause, max_steps), tries + 1
+    errors[2] = escaped
     # the linearised choices can dip below zero by rounding-sized amounts where a state's
     # mean sum lies far from its reference; a probability is never negative
     np.maximum(rt_pmf, 0.0, out=rt_pmf)

@@ -674,8 +674,37 @@ def _sum_parts(acc, y, ym, yq, second):
 
 
 @njit
+def apply_step(row_ptr, cols, t0, t1, sref, snext, b_sum, dvar, x, m, y, ym, in_parts, src, acc):
+    """``(y, ym)`` = one step of the chain applied to any ``(x, m)`` (a Krylov vector of
+    :mod:`mdft._plane_krylov`): no state is skipped, and mass on a frontier state (no row)
+    goes nowhere. ``src`` (n_states, 4) and ``acc`` (PARTS, 3, n_states) are work space for
+    ``in_parts``, which adds the parts in the same fixed order as :func:`propagate`."""
+    n_states = x.shape[0]
+    for r in range(n_states):
+        y[r] = 0.0
+        ym[r] = 0.0
+    for r in range(n_states):
+        xr = x[r]
+        u = m[r] - sref[r] * xr
+        sn = snext[r]
+        carry = sn * xr + b_sum * u
+        cu = sn * u + b_sum * dvar * xr
+        if in_parts:
+            src[r, 0] = xr
+            src[r, 1] = u
+            src[r, 2] = carry
+            src[r, 3] = cu
+        elif xr != 0.0 or u != 0.0:
+            _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu, 0.0, False, y, ym, y)
+    if in_parts:
+        _scatter_parts(row_ptr, cols, t0, t1, src, np.zeros(0), acc, False)
+        _sum_parts(acc, y, ym, y, False)
+
+
+@njit
 def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q, rt_pmf, occ,
-              tol, second, budget_p, budget_rt, floor, errors, in_parts, frontier):
+              tol, second, budget_p, budget_rt, floor, errors, in_parts, frontier, pause,
+              t_first, hazard, done, snaps, dist):
     """Apply the moment chain step by step (see the module docstring).
 
     With ``in_parts``, each step's scatter runs in :data:`PARTS` parts on numba's threads
@@ -697,7 +726,13 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
     the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
     :func:`build`) leaves the chain; its sum is left in ``errors[2]``. ``occ[:, 0]``
-    accumulates ``x`` over the steps (where the next, finer pass needs rows). Returns
+    accumulates ``x`` over the steps (where the next, finer pass needs rows). With
+    ``pause < rt_pmf.shape[0]``, returns after row ``pause - 1`` with ``x`` and ``m`` the
+    distribution after ``pause`` steps (no tail filled), unless it stopped before; a
+    later call with ``t_first = pause`` goes on from there. ``hazard`` (per row),
+    ``done`` (each option's probability and time-weighted probability so far), ``snaps``
+    and ``dist`` (:func:`mdft._plane_tail.snapshot`) carry the tail's checks across
+    calls; the first call (``t_first = 1``) starts them. Returns
     ``(steps, tail_start, mass)``.
     """
     n_states = x.shape[0]
@@ -711,14 +746,12 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     src = np.zeros((n_src, 4))
     q0s = np.zeros(n_src if second else 0)
     acc = np.zeros((PARTS if in_parts else 0, 3, n_states))
-    hazard = np.zeros(n_steps)
-    done_p = np.zeros(n_opt)
-    done_w = np.zeros(n_opt)
+    done_p = done[0]
+    done_w = done[1]
     sigma = np.zeros(n_opt)
     dsigma = np.zeros(n_opt)
-    snap_x = np.zeros(n_states)
-    snap_m = np.zeros(n_states)
-    dist = np.full((3, 2), -1.0)
+    snap_x = snaps[0]
+    snap_m = snaps[1]
     # how far a change in the distribution can move the hazard (choices per unit of x, m)
     reach = np.zeros(2)
     for r in range(n_states):
@@ -729,9 +762,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             a1 += abs(ab1[r, i])
         reach[0] = max(reach[0], a0)
         reach[1] = max(reach[1], a1)
-    for i in range(n_opt):
-        done_p[i] = rt_pmf[0, i]
-        done_w[i] = rt_pmf[0, i]
+    if t_first == 1:
+        for i in range(n_opt):
+            done_p[i] = rt_pmf[0, i]
+            done_w[i] = rt_pmf[0, i]
     errors[0] = 0.0
     errors[1] = 0.0
     errors[2] = 0.0
@@ -745,9 +779,11 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     for r in range(n_states):
         s_scale = max(s_scale, abs(sref[r]) + 1.0)
     dropped = 0.0
-    steps = 1
+    steps = t_first
     bb = b_sum * b_sum
-    for t in range(1, n_steps):
+    for t in range(t_first, n_steps):
+        if t >= pause:
+            break
         if mass < tol:
             errors[0] = dropped
             errors[1] = 0.0
@@ -837,3 +873,31 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     errors[1] = 0.0
     errors[2] = escaped
     return steps, n_steps, mass
+
+
+@njit
+def krylov_powers(H, beta, n, negligible):
+    """Rows ``k = 0 .. n - 1``: ``H^k (beta e_1)`` (:mod:`mdft._plane_krylov`), up to the
+    first whose norm is below ``negligible`` (the rest are zero); returns the rows and how
+    many were computed."""
+    d = H.shape[0]
+    out = np.zeros((n, d))
+    c = np.zeros(d)
+    nxt = np.zeros(d)
+    c[0] = beta
+    for k in range(n):
+        norm = 0.0
+        for i in range(d):
+            out[k, i] = c[i]
+            norm += c[i] * c[i]
+        if math.sqrt(norm) < negligible:
+            return out, k + 1
+        # H is upper Hessenberg: row i starts at column i - 1
+        for i in range(d):
+            v = 0.0
+            for j in range(max(i - 1, 0), d):
+                v += H[i, j] * c[j]
+            nxt[i] = v
+        for i in range(d):
+            c[i] = nxt[i]
+    return out, n

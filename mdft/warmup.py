@@ -67,9 +67,10 @@ class WarmupReport:
 
 
 def _steps():
-    """(label, function) pairs, each a small public call that reaches some kernels."""
+    """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
     from .simulate import FixedTime, Threshold, decide, simulate
+    from . import _plane_krylov
     from .threshold_exact import threshold_probabilities
 
     M3 = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
@@ -91,7 +92,8 @@ def _steps():
             decide(np.array([M3] * 2_000), w, n_steps=100, rng=0, **canon))),
         ("threshold_probabilities", lambda: (
             threshold_probabilities(m2, 3.0, max_steps=20, n_cells=5),
-            threshold_probabilities(m3, 3.0, max_steps=20))),
+            threshold_probabilities(m3, 3.0, max_steps=20),
+            _plane_krylov.compile_kernels())),
     ]
 
 
