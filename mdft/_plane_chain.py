@@ -276,8 +276,8 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
             bool(in_parts), chain.frontier, pause, t_first, *track)
         escaped += errors[2]
         dropped += errors[0]  # with the geometric tail's change, if it was filled
-        if tail_start < max_steps or steps >= max_steps or mass < tol:
-            errors[0] = dropped
+        if tail_start < max_steps or steps != pause or pause >= max_steps:
+            errors[0] = dropped  # a tail filled, decided, or at the step limit
             break
         # between the Krylov steps the threads go idle, and waking them costs more than
         # running the parts saves below _KRYLOV_PARTS_MIN_NONZEROS

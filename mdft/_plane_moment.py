@@ -721,7 +721,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     accumulates the occupation of ``x``, ``m`` and ``q`` over the steps (for
     the next pass's reference sums and spread). ``snext[r]`` is the next sum
     from state ``r`` at its reference sum and ``b_sum`` its slope in the
-    current sum. Stops once the undecided mass is below ``tol``, or, with
+    current sum. Stops once the undecided mass (of ``|x|``) is below ``tol``, or, with
     ``budget_p > 0``, once the tail may be filled geometrically with a change
     within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
     the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
@@ -771,8 +771,12 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     errors[2] = 0.0
     escaped = 0.0
     mass = 0.0
+    # the stop looks at |x|: where the moment closure lets x change sign, the signed mass can
+    # pass below tol while the walks still choose
+    size = 0.0
     for r in range(n_states):
         mass += x[r]
+        size += abs(x[r])
     # states holding less than _SKIP of the undecided mass are left out of the step (their
     # mass, summed over the steps, is added to the probabilities' error)
     s_scale = 1.0
@@ -784,7 +788,7 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     for t in range(t_first, n_steps):
         if t >= pause:
             break
-        if mass < tol:
+        if size < tol:
             errors[0] = dropped
             errors[1] = 0.0
             errors[2] = escaped
@@ -842,12 +846,14 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second)
             _sum_parts(acc, y, ym, yq, second)
         new_mass = 0.0
+        size = 0.0
         for r in range(n_states):
             x[r] = y[r]
             m[r] = ym[r]
             y[r] = 0.0
             ym[r] = 0.0
             new_mass += x[r]
+            size += abs(x[r])
         if second:
             for r in range(n_states):
                 q[r] = yq[r]

@@ -559,6 +559,31 @@ def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
     assert geometric[2] > 6 * krylov[2]
 
 
+def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
+    """A random model (seed 777 of the benchmark's draws) whose moment closure lets the
+    probabilities of some states turn negative: their signed sum fell below the stop
+    tolerance while the walks still chose 1.3e-6 more of one option. Stopping on the sum of
+    |x| gives every step's answer."""
+    from mdft._plane_chain import build_moment_chain, propagate_moments, reference_sums
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel([[2.455354, 3.65308], [1.585164, 1.866527], [0.530718, 2.560094]],
+                          [0.674101, 0.325899], phi1=0.08985654, phi2=0.03238458,
+                          beta=2.0401195, sigma2=0.50501289)
+    theta = 19.778292
+    ref, delta = np.array([float(np.sum(model.P0)), 0.0, 0.0]), 0.5
+    for _ in range(2):  # the reference sums as the library's pilots fit them
+        pilot = build_moment_chain(model, theta, 2.0, ref, delta, 30_000)
+        ref, delta = reference_sums(pilot, propagate_moments(pilot, 1000, 1e-6, second=True)[4])
+    chain = build_moment_chain(model, theta, 1.41, ref, delta, 30_000)
+    every = propagate_moments(chain, 10_000, -np.inf)
+    stopped = propagate_moments(chain, 10_000, 1e-14)
+    assert stopped[2] < 10_000
+    np.testing.assert_allclose(stopped[0].sum(axis=0), every[0].sum(axis=0), rtol=0,
+                               atol=1e-12)
+
+
 def test_krylov_powers_match_matrix_powers():
     from mdft._plane_moment import krylov_powers
 
