@@ -263,7 +263,8 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     if in_parts is None:
         in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     use_krylov = krylov and not second and budget[0] > 0.0
-    pause, tries = (_KRYLOV_FIRST, 0) if use_krylov else (max_steps, 0)
+    pause = _KRYLOV_FIRST if use_krylov else max_steps
+    tries = 0
     # the tail's checks, carried across the pauses
     track = (np.zeros(max_steps), np.zeros((2, 3)), np.zeros((2, n)), np.full((3, 2), -1.0))
     t_first = 1
