@@ -31,7 +31,8 @@ import numpy as np
 
 import mdft
 from mdft import _plane_moment
-from mdft._plane_chain import _PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments
+from mdft._plane_chain import (_PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments,
+                               tail_track)
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_threshold_exact import draw_model  # noqa: E402
@@ -54,8 +55,7 @@ def occupied_step_seconds(chain, steps=60, repeats=2):
                                 chain.r1, chain.sref, chain.snext, chain.b_sum,
                                 chain.delta**2, x, m, q, rt_pmf, occ, 0.0, False, 0.0, 0.0,
                                 0.01, errors, in_parts, chain.frontier, steps, 1,
-                                np.zeros(steps), np.zeros((2, 3)), np.zeros((2, n)),
-                                np.full((3, 2), -1.0))
+                                *tail_track(steps, n))
         best = min(best, (time.perf_counter() - start) / (steps - 1))
     return best
 

@@ -231,6 +231,13 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
                        (float(g["sd_exact"][0]), float(g["sd_exact"][1])), narrow)
 
 
+def tail_track(max_steps, n_states):
+    """Fresh state of the tail's checks for :func:`mdft._plane_moment.propagate` (its
+    ``hazard``, ``done``, ``snaps`` and ``dist``), carried across a pass's pauses."""
+    return (np.zeros(max_steps), np.zeros((2, 3)), np.zeros((2, n_states)),
+            np.full((3, 2), -1.0))
+
+
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
                       in_parts=None, krylov=True):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
@@ -265,8 +272,7 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     use_krylov = krylov and not second and budget[0] > 0.0
     pause = _KRYLOV_FIRST if use_krylov else max_steps
     tries = 0
-    # the tail's checks, carried across the pauses
-    track = (np.zeros(max_steps), np.zeros((2, 3)), np.zeros((2, n)), np.full((3, 2), -1.0))
+    track = tail_track(max_steps, n)
     t_first = 1
     dropped = escaped = 0.0
     while True:

@@ -673,6 +673,15 @@ def _sum_parts(acc, y, ym, yq, second):
                 yq[c] = v
 
 
+@njit_inline
+def _source_terms(xr, mr, sr, sn, b_sum, dvar):
+    """A source's deviation ``u = m - s_ref x`` and the terms its row scatters to the next
+    first moment: ``carry`` (with ``T0``) and ``cu`` (with ``T1``); see the module
+    docstring."""
+    u = mr - sr * xr
+    return u, sn * xr + b_sum * u, sn * u + b_sum * dvar * xr
+
+
 @njit
 def apply_step(row_ptr, cols, t0, t1, sref, snext, b_sum, dvar, x, m, y, ym, in_parts, src, acc):
     """``(y, ym)`` = one step of the chain applied to any ``(x, m)`` (a Krylov vector of
@@ -685,10 +694,7 @@ def apply_step(row_ptr, cols, t0, t1, sref, snext, b_sum, dvar, x, m, y, ym, in_
         ym[r] = 0.0
     for r in range(n_states):
         xr = x[r]
-        u = m[r] - sref[r] * xr
-        sn = snext[r]
-        carry = sn * xr + b_sum * u
-        cu = sn * u + b_sum * dvar * xr
+        u, carry, cu = _source_terms(xr, m[r], sref[r], snext[r], b_sum, dvar)
         if in_parts:
             src[r, 0] = xr
             src[r, 1] = u
@@ -820,12 +826,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 q[r] = 0.0
                 continue
             sr = sref[r]
-            u = mr - sr * xr
+            sn = snext[r]
+            u, carry, cu = _source_terms(xr, mr, sr, sn, b_sum, dvar)
             for i in range(n_opt):
                 rt_pmf[t, i] += ab0[r, i] * xr + ab1[r, i] * u
-            sn = snext[r]
-            carry = sn * xr + b_sum * u
-            cu = sn * u + b_sum * dvar * xr
             q0 = 0.0
             occ[r, 0] += xr
             if second:

@@ -734,6 +734,7 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_par
     # so the first moment reaching the next state is E[s' T(s)] = s_next t0 + b t1 delta**2.
     # The same, serially and in parallel parts.
     from mdft import _plane_moment
+    from mdft._plane_chain import tail_track
 
     t0, t1, s_ref, s_next, b, delta = 0.6, 0.05, 10.0, 9.0, 0.9, 1.5
     x = np.array([1.0, 0.0])
@@ -744,8 +745,7 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_par
         np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
         np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
         b, delta**2, x, m, q, rt_pmf, np.zeros((2, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(3),
-        in_parts, np.zeros(2, dtype=bool), 2, 1, np.zeros(2), np.zeros((2, 3)),
-        np.zeros((2, 2)), np.full((3, 2), -1.0))
+        in_parts, np.zeros(2, dtype=bool), 2, 1, *tail_track(2, 2))
     assert x[1] == pytest.approx(t0)
     assert m[1] == pytest.approx(s_next * t0 + b * t1 * delta**2)
 
