@@ -31,7 +31,8 @@ from ._lattice_chain import build_chain
 from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
-                           plane_geometry, propagate_moments, reference_sums, solve_moments)
+                           pilot_occupation, plane_geometry, propagate_moments, reference_sums,
+                           solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -607,11 +608,18 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         for _ in range(_PILOT_PASSES):
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
                                        max_states)
-            occ = propagate_moments(chain, _PILOT_STEPS, 1e-6, budget, second=True,
-                                    floor=_RT_WEIGHT_FLOOR)[4]
+            occ, steps, cut = pilot_occupation(chain, _PILOT_STEPS, 1e-6, budget,
+                                               floor=_RT_WEIGHT_FLOOR)
+            if cut:
+                # the pilot's closure ran away (its reference sums were too far from the
+                # walks' sums): only its steps before are fitted
+                logger.debug("resolution %.3g: the pilot pass was cut after %d steps", k, steps)
+            if steps == 0:
+                break  # nothing to fit: the reference sums and spread stay as they were
             state["ref"], state["delta"] = reference_sums(chain, occ)
         if limit:
-            state["near"] = near_occupied(chain, occ)
+            # a cut pilot's occupation stops short of where the walks go: every row
+            state["near"] = None if cut else near_occupied(chain, occ)
 
     def run(k, delta):
         if solve["method"] == "propagate":

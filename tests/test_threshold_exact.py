@@ -584,6 +584,72 @@ def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
                                atol=1e-12)
 
 
+def runaway_pilot_model():
+    """Seed 9191 model 14 of the benchmark's draws (a long deliberation, mean times 540-590
+    steps): with the pilot's first guess of the reference sums, its moment closure runs away
+    after about 200 steps."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel([[2.0356108074080255, 2.253562468264767],
+                           [0.9061297268088968, 2.1682379023887544],
+                           [0.623301638882569, 2.0033458201561873]],
+                          [0.4138242065397861, 0.586175793460214], phi1=0.008507515982439344,
+                          phi2=0.06767721501851882, beta=10.305919742706031,
+                          sigma2=0.22853328717998567)
+    return model, 50.78103007752905
+
+
+def test_a_pilot_whose_closure_runs_away_keeps_the_steps_before(monkeypatch):
+    from mdft import _plane_chain
+    from mdft._plane_chain import build_moment_chain, pilot_occupation, propagate_moments
+
+    model, theta = runaway_pilot_model()
+    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+    chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 30_000)
+    occ, steps, cut = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
+    assert cut and 100 <= steps < 1000 and steps % _plane_chain._PILOT_CHUNK == 0
+    # the occupation kept is that of a pass of that many steps
+    alone = propagate_moments(chain, steps, 1e-6, (1e-5, 3e-5), second=True)
+    np.testing.assert_allclose(occ, alone[4], rtol=1e-12, atol=1e-300)
+    # unguarded, the pass goes on to the step limit and its answer is no distribution
+    monkeypatch.setattr(_plane_chain, "_PILOT_RUNAWAY", np.inf)
+    occ_all, steps_all, cut_all = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
+    assert not cut_all and steps_all == 1000
+    wild = propagate_moments(chain, 1000, 1e-6, (1e-5, 3e-5), second=True)
+    assert wild[0].sum() + wild[1] > 2.0
+
+
+def test_a_healthy_pilot_is_not_cut(monkeypatch):
+    # the canonical compromise set: the pilot's closure stays sound, and running it in
+    # chunks gives the occupation of one run
+    from mdft import _plane_chain
+    from mdft._plane_chain import build_moment_chain, pilot_occupation
+
+    model = MDFTModel(SETS["compromise"], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0,
+                      sigma2=1.0)
+    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+    chain = build_moment_chain(model, 17.5, 2.0, ref, 0.5, 30_000)
+    occ, steps, cut = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
+    assert not cut and steps > 2 * _plane_chain._PILOT_CHUNK
+    monkeypatch.setattr(_plane_chain, "_PILOT_CHUNK", 10_000)
+    occ_one, steps_one, _ = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
+    assert steps_one == steps
+    np.testing.assert_allclose(occ, occ_one, rtol=1e-12, atol=1e-300)
+
+
+def test_a_model_whose_first_pilot_runs_away_is_answered():
+    """Before the guard, the reference sums fitted from the runaway pilot made every pass's
+    closure unstable, and the call simulated (40 s). Reference: 10**6 simulated trials
+    (benchmarks/bench_threshold_exact.py, seed 9191, max_steps 10,000): p = 2.1e-5,
+    0.50616, 0.493819 (standard errors 0.0005) and mean times 582 (21 trials), 538.78,
+    587.04 steps."""
+    model, theta = runaway_pilot_model()
+    res = threshold_probabilities(model, theta, fallback="raise")
+    assert res.engine == "plane"
+    np.testing.assert_allclose(res.probabilities, [2.1e-5, 0.50616, 0.493819], atol=0.002)
+    np.testing.assert_allclose(res.mean_response_times[1:], [538.78, 587.04], rtol=0.005)
+
+
 def test_krylov_powers_match_matrix_powers():
     from mdft._plane_moment import krylov_powers
 
