@@ -21,6 +21,7 @@ import logging
 import math
 from dataclasses import dataclass, replace
 from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.sparse as sp
@@ -70,6 +71,12 @@ _SIM_STEP_WORK = 30.0
 _PILOT_DELTA = 0.5
 _PILOT_STEPS = 1_000
 _PILOT_PASSES = 2
+# Three options: after a pilot cut short (its closure ran away), the reference sums are fitted
+# again to the walks of a pass at the first resolution that counts, at most _REFITS times,
+# until the answer changes by at most _REFIT_SHARE of the tolerances; the last change is
+# added to the closure's error.
+_REFITS = 4
+_REFIT_SHARE = 0.1
 # Three options: a closure error above this share of a tolerance on the coarsest grid is
 # measured again on the next (and refuses at once there only beyond _FIRST_PAIR_FACTOR times
 # the tolerance).
@@ -459,12 +466,18 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
         spread_p, spread_rt = closure["error"]
+        # with the reference term where the reference sums were refitted (a cut pilot)
+        spread_p += closure.get("reference", (0.0, 0.0))[0]
+        spread_rt += closure.get("reference", (0.0, 0.0))[1]
         gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
                                                  or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
         if gross and (spread_p > atol or spread_rt > rt_rtol):
             # known once measured on a grid finer than the coarsest (or far beyond the
             # tolerances there): no finer pass can meet the tolerances
-            reason = (f"the spread of the summed preference alone may change the probabilities "
+            what = ("the spread of the summed preference" if "reference" not in closure else
+                    "the spread of the summed preference and the fit of its reference sums "
+                    "(refitted after the pilot pass's closure ran away)")
+            reason = (f"{what} alone may change the probabilities "
                       f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
             break
@@ -612,8 +625,10 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                                                floor=_RT_WEIGHT_FLOOR)
             if cut:
                 # the pilot's closure ran away (its reference sums were too far from the
-                # walks' sums): only its steps before are fitted
+                # walks' sums): only its steps before are fitted, and the fit is checked
+                # against the walks of the first pass that counts (refit)
                 logger.debug("resolution %.3g: the pilot pass was cut after %d steps", k, steps)
+                state["cut"] = True
             if steps == 0:
                 break  # nothing to fit: the reference sums and spread stay as they were
             state["ref"], state["delta"] = reference_sums(chain, occ)
@@ -673,12 +688,40 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             mean_response_times=_mean_rt(weighted, probs), max_steps=None, method="solve",
             n_iter=n_iter, converged=True, tail_start=None, **common)
 
+    def refit(k):
+        # a pass at resolution k, the reference sums fitted again to its own walks' mean sums,
+        # until the answer changes by less than _REFIT_SHARE of the tolerances; the last
+        # change is the closure's reference term
+        previous = None
+        change = (math.inf, math.inf)
+        times = np.arange(1, solve["max_steps"] + 1, dtype=np.float64)
+        for _ in range(_REFITS):
+            chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
+                                       max_states)
+            out = propagate_moments(chain, solve["max_steps"], solve["tol"], budget,
+                                    second=True, floor=_RT_WEIGHT_FLOOR)
+            probs = out[0].sum(axis=0)
+            answer = SimpleNamespace(probabilities=probs, p_undecided=out[1],
+                                     mean_response_times=_mean_rt(times @ out[0], probs))
+            if previous is not None:
+                change = _error_estimate(answer, previous)
+                logger.debug("resolution %.3g: refitting the reference sums changed the "
+                             "answer by %.2g and %.2g", k, *change)
+                if (change[0] <= _REFIT_SHARE * tolerances[0]
+                        and change[1] <= _REFIT_SHARE * tolerances[1]):
+                    break
+            previous = answer
+            state["ref"] = reference_sums(chain, out[4])[0]
+        closure["reference"] = change
+
     def make(k, first):
         def compute():
             if first:
                 # the pilots fit the reference sums on a grid one step coarser (a quarter of the
                 # nonzeros): the fit is a plane and a spread, which need no finer grid
                 pilot(k * _REFINE)
+                if state.get("cut"):
+                    refit(k)
             result = run(k, state["delta"])
             if state["delta"] > 0.0 and (first or not closure["settled"]):
                 # the closure's error: the change that a spread of the sum within the states

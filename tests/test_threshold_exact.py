@@ -650,6 +650,26 @@ def test_a_model_whose_first_pilot_runs_away_is_answered():
     np.testing.assert_allclose(res.mean_response_times[1:], [538.78, 587.04], rtol=0.005)
 
 
+def test_reference_sums_refitted_after_a_cut_pilot_are_checked():
+    """Seed 5150 model 3 of the benchmark's draws: its pilot's closure runs away within 50
+    steps, and the pilot cut at 150 steps fits reference sums that leave the chain stable but
+    biased (0.0067 and 0.9933, mean time 226 steps for the second option). Refitted to the
+    walks of the first pass that counts, the answer is within the tolerances of
+    5 * 10**6 simulated trials (1 and 4 million with seeds 1 and 7 of mdft.simulate, pooled:
+    p = 0.00826, 0.99174, mean times 143.6 and 217.2 steps)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel([[1.8138094066077708, 3.9686312912630735],
+                           [2.579267199608471, 2.9609474427885942],
+                           [0.9511985461332478, 1.3554338688020402]],
+                          [0.5606021609462761, 0.4393978390537239], phi1=0.0076642266530194715,
+                          phi2=0.03956108946247433, beta=2.745171083240042,
+                          sigma2=0.18106185763880178)
+    res = threshold_probabilities(model, 31.51853929122604, fallback="raise")
+    np.testing.assert_allclose(res.probabilities, [0.00826, 0.99174, 0.0], atol=0.001)
+    np.testing.assert_allclose(res.mean_response_times[:2], [143.6, 217.2], rtol=0.005)
+
+
 def test_krylov_powers_match_matrix_powers():
     from mdft._plane_moment import krylov_powers
 
