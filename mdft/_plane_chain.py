@@ -247,12 +247,12 @@ def tail_track(max_steps, n_states):
             np.full((3, 2), -1.0))
 
 
-def pilot_occupation(chain, max_steps, tol, budget=(0.0, 0.0), floor=0.01):
-    """A pilot pass (:func:`propagate_moments` with ``second``): ``(occupation, steps,
-    cut)``, where ``cut`` says that it stopped because its moment closure ran away (the
-    occupation is then that of its first ``steps`` steps, which may be none)."""
-    out, cut = _propagate(chain, max_steps, tol, budget, True, floor, None, False)
-    return out[4], out[2], cut
+def pilot_pass(chain, max_steps, tol, budget=(0.0, 0.0), floor=0.01):
+    """A pilot pass (:func:`propagate_moments` with ``second``) and whether it was cut
+    because its moment closure ran away: ``(answer, cut)``. A cut pass's occupation is that
+    of its first ``answer[2]`` steps (which may be none); the rest of its answer is not one.
+    """
+    return _propagate(chain, max_steps, tol, budget, True, floor, None, False)
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,

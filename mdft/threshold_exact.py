@@ -32,7 +32,7 @@ from ._lattice_chain import build_chain
 from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
-                           pilot_occupation, plane_geometry, propagate_moments, reference_sums,
+                           pilot_pass, plane_geometry, propagate_moments, reference_sums,
                            solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
@@ -621,8 +621,8 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         for _ in range(_PILOT_PASSES):
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
                                        max_states)
-            occ, steps, cut = pilot_occupation(chain, _PILOT_STEPS, 1e-6, budget,
-                                               floor=_RT_WEIGHT_FLOOR)
+            out, cut = pilot_pass(chain, _PILOT_STEPS, 1e-6, budget, floor=_RT_WEIGHT_FLOOR)
+            occ, steps = out[4], out[2]
             if cut:
                 # the pilot's closure ran away (its reference sums were too far from the
                 # walks' sums): only its steps before are fitted, and the fit is checked
@@ -698,8 +698,13 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         for _ in range(_REFITS):
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
                                        max_states)
-            out = propagate_moments(chain, solve["max_steps"], solve["tol"], budget,
-                                    second=True, floor=_RT_WEIGHT_FLOOR)
+            out, cut = pilot_pass(chain, solve["max_steps"], solve["tol"], budget,
+                                  floor=_RT_WEIGHT_FLOOR)
+            if cut:
+                raise TooManyStates(
+                    f"at resolution {k:.3g} the moment closure of the summed preference is "
+                    "unstable for this model: it runs away even with the reference sums fitted "
+                    "to the walks' own mean sums")
             probs = out[0].sum(axis=0)
             answer = SimpleNamespace(probabilities=probs, p_undecided=out[1],
                                      mean_response_times=_mean_rt(times @ out[0], probs))

@@ -599,9 +599,17 @@ def runaway_pilot_model():
     return model, 50.78103007752905
 
 
+def pilot_occupation(chain, max_steps, tol, budget):
+    """A pilot pass's ``(occupation, steps, cut)``."""
+    from mdft._plane_chain import pilot_pass
+
+    out, cut = pilot_pass(chain, max_steps, tol, budget)
+    return out[4], out[2], cut
+
+
 def test_a_pilot_whose_closure_runs_away_keeps_the_steps_before(monkeypatch):
     from mdft import _plane_chain
-    from mdft._plane_chain import build_moment_chain, pilot_occupation, propagate_moments
+    from mdft._plane_chain import build_moment_chain, propagate_moments
 
     model, theta = runaway_pilot_model()
     ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
@@ -623,7 +631,7 @@ def test_a_healthy_pilot_is_not_cut(monkeypatch):
     # the canonical compromise set: the pilot's closure stays sound, and running it in
     # chunks gives the occupation of one run
     from mdft import _plane_chain
-    from mdft._plane_chain import build_moment_chain, pilot_occupation
+    from mdft._plane_chain import build_moment_chain
 
     model = MDFTModel(SETS["compromise"], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0,
                       sigma2=1.0)
