@@ -315,12 +315,12 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov):
         if second:
             balance = float(np.abs(rt_pmf[:steps]).sum() + np.abs(x).sum() + escaped) - 1.0
             if not balance <= _PILOT_RUNAWAY:
+                kept_steps = t_first if t_first > 1 else 0  # the chunks before this one
                 logger.debug("pilot pass: the sizes of the choices and of the undecided mass "
                              "sum to 1 %+.2g after %d steps; the occupation of the first %d "
-                             "steps is kept",
-                             balance, steps, t_first if t_first > 1 else 0)
+                             "steps is kept", balance, steps, kept_steps)
                 occ[:] = kept
-                steps = t_first if t_first > 1 else 0
+                steps = kept_steps
                 errors[0] = dropped
                 cut = True
                 break

@@ -605,7 +605,10 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     from a constant reference sum and spread ``_PILOT_DELTA``, the second from
     the first's fit) fit the reference sums and their spread from the
     occupation; every pass that counts uses that fit, so ``"propagate"`` and
-    ``"solve"`` solve the same chains. ``tolerances``: ``(atol, rt_rtol)``.
+    ``"solve"`` solve the same chains. A pilot whose closure runs away is cut
+    (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
+    walks of passes at the first resolution that counts, the last change joining
+    the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
     """
     kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
