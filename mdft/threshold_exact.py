@@ -620,11 +620,16 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     # the change the extrapolated tail may make: a share of the tolerances (0: no tail)
     budget = (0.0, 0.0) if solve["tail_tol"] == 0.0 else tuple(_TAIL_SHARE * t for t in tolerances)
 
+    def fitting_pass(k, steps, tol):
+        # a pass carrying the occupation of the sum's moments, with every row, at the current
+        # reference sums: (chain, answer, cut)
+        chain = build_moment_chain(model, theta, k, state["ref"], state["delta"], max_states)
+        out, cut = pilot_pass(chain, steps, tol, budget, floor=_RT_WEIGHT_FLOOR)
+        return chain, out, cut
+
     def pilot(k):
         for _ in range(_PILOT_PASSES):
-            chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
-                                       max_states)
-            out, cut = pilot_pass(chain, _PILOT_STEPS, 1e-6, budget, floor=_RT_WEIGHT_FLOOR)
+            chain, out, cut = fitting_pass(k, _PILOT_STEPS, 1e-6)
             occ, steps = out[4], out[2]
             if cut:
                 # the pilot's closure ran away (its reference sums were too far from the
@@ -699,10 +704,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         change = (math.inf, math.inf)
         times = np.arange(1, solve["max_steps"] + 1, dtype=np.float64)
         for _ in range(_REFITS):
-            chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
-                                       max_states)
-            out, cut = pilot_pass(chain, solve["max_steps"], solve["tol"], budget,
-                                  floor=_RT_WEIGHT_FLOOR)
+            chain, out, cut = fitting_pass(k, solve["max_steps"], solve["tol"])
             if cut:
                 raise TooManyStates(
                     f"at resolution {k:.3g} the moment closure of the summed preference is "

@@ -59,6 +59,13 @@ def plain(M, w, sigma2=1.0):
         return MDFTModel(M, w, phi1=0.0, phi2=0.0, beta=1.0, sigma2=sigma2)
 
 
+def drawn(M, w, **params):
+    """A model of the benchmark's random draws (their feedback may warn)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        return MDFTModel(M, w, **params)
+
+
 def canonical(options, w=(0.5, 0.5)):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
@@ -566,11 +573,9 @@ def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
     |x| gives every step's answer."""
     from mdft._plane_chain import build_moment_chain, propagate_moments, reference_sums
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = MDFTModel([[2.455354, 3.65308], [1.585164, 1.866527], [0.530718, 2.560094]],
-                          [0.674101, 0.325899], phi1=0.08985654, phi2=0.03238458,
-                          beta=2.0401195, sigma2=0.50501289)
+    model = drawn([[2.455354, 3.65308], [1.585164, 1.866527], [0.530718, 2.560094]],
+                  [0.674101, 0.325899], phi1=0.08985654, phi2=0.03238458, beta=2.0401195,
+                  sigma2=0.50501289)
     theta = 19.778292
     ref, delta = np.array([float(np.sum(model.P0)), 0.0, 0.0]), 0.5
     for _ in range(2):  # the reference sums as the library's pilots fit them
@@ -588,14 +593,11 @@ def runaway_pilot_model():
     """Seed 9191 model 14 of the benchmark's draws (a long deliberation, mean times 540-590
     steps): with the pilot's first guess of the reference sums, its moment closure runs away
     after about 200 steps."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = MDFTModel([[2.0356108074080255, 2.253562468264767],
-                           [0.9061297268088968, 2.1682379023887544],
-                           [0.623301638882569, 2.0033458201561873]],
-                          [0.4138242065397861, 0.586175793460214], phi1=0.008507515982439344,
-                          phi2=0.06767721501851882, beta=10.305919742706031,
-                          sigma2=0.22853328717998567)
+    model = drawn([[2.0356108074080255, 2.253562468264767],
+                   [0.9061297268088968, 2.1682379023887544],
+                   [0.623301638882569, 2.0033458201561873]],
+                  [0.4138242065397861, 0.586175793460214], phi1=0.008507515982439344,
+                  phi2=0.06767721501851882, beta=10.305919742706031, sigma2=0.22853328717998567)
     return model, 50.78103007752905
 
 
@@ -665,14 +667,11 @@ def test_reference_sums_refitted_after_a_cut_pilot_are_checked():
     walks of the first pass that counts, the answer is within the tolerances of
     5 * 10**6 simulated trials (1 and 4 million with seeds 1 and 7 of mdft.simulate, pooled:
     p = 0.00826, 0.99174, mean times 143.6 and 217.2 steps)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = MDFTModel([[1.8138094066077708, 3.9686312912630735],
-                           [2.579267199608471, 2.9609474427885942],
-                           [0.9511985461332478, 1.3554338688020402]],
-                          [0.5606021609462761, 0.4393978390537239], phi1=0.0076642266530194715,
-                          phi2=0.03956108946247433, beta=2.745171083240042,
-                          sigma2=0.18106185763880178)
+    model = drawn([[1.8138094066077708, 3.9686312912630735],
+                   [2.579267199608471, 2.9609474427885942],
+                   [0.9511985461332478, 1.3554338688020402]],
+                  [0.5606021609462761, 0.4393978390537239], phi1=0.0076642266530194715,
+                  phi2=0.03956108946247433, beta=2.745171083240042, sigma2=0.18106185763880178)
     res = threshold_probabilities(model, 31.51853929122604, fallback="raise")
     np.testing.assert_allclose(res.probabilities, [0.00826, 0.99174, 0.0], atol=0.001)
     np.testing.assert_allclose(res.mean_response_times[:2], [143.6, 217.2], rtol=0.005)
