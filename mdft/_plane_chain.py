@@ -263,7 +263,8 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     ``budget = (atol, rtol)``: the change that filling the tail (geometrically, or from a
     Krylov space: :mod:`mdft._plane_krylov`) may make to the probabilities and (relative)
     to the mean response times (0: no tail; :mod:`mdft._plane_tail`); ``tail_errors`` is
-    the change estimated where it was filled. ``occupation[:, 0]`` is each state's
+    the change estimated where it was filled, and (third) the size of the negative choices
+    and undecided mass clipped (:func:`_clip_negative`). ``occupation[:, 0]`` is each state's
     probability summed over the steps; ``second`` also carries the second moment of the
     sum and its occupation (``occupation[:, 1:]``, a pilot pass, which fills no Krylov
     tail, and stops at the first of its chunks of ``_PILOT_CHUNK`` steps where the sizes of
@@ -345,11 +346,33 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov):
             break
         t_first, pause, tries = pause, min(2 * pause, max_steps), tries + 1
     errors[2] = escaped
-    # the linearised choices can dip below zero by rounding-sized amounts where a state's
-    # mean sum lies far from its reference; a probability is never negative
-    np.maximum(rt_pmf, 0.0, out=rt_pmf)
-    return (rt_pmf, float(max(mass, 0.0)), int(steps), int(tail_start), occ,
-            (float(errors[0]), float(errors[1])), float(errors[2])), cut
+    mass, clipped = _clip_negative(rt_pmf, float(mass))
+    return (rt_pmf, mass, int(steps), int(tail_start), occ,
+            (float(errors[0]), float(errors[1]), clipped), float(errors[2])), cut
+
+
+def _clip_negative(rt_pmf, mass):
+    """Clip the negative choices and undecided mass of a moment chain's answer (in place)
+    and scale what is left back to a distribution; returns ``(mass, clipped)``.
+
+    Where a state's mean sum lies far from its reference, the linearised choices
+    ``R0 + (s - sref) R1`` can turn negative: the signed answer still sums to 1, and the
+    walks counted on the other options make up for the negative part. A probability is
+    never negative, so the negative part is set to zero, the rest scaled to sum to 1 with
+    the undecided mass (the mean times do not change), and the size of the negative part
+    (``clipped``) is part of the answer's error: it is the closure's error made visible.
+    """
+    negative = rt_pmf < 0.0
+    clipped = float(-rt_pmf[negative].sum()) + max(-mass, 0.0)
+    if clipped == 0.0:
+        return mass, 0.0
+    rt_pmf[negative] = 0.0
+    mass = max(mass, 0.0)
+    total = float(rt_pmf.sum()) + mass
+    if total > 0.0:
+        rt_pmf /= total
+        mass /= total
+    return mass, clipped
 
 
 def near_occupied(chain, occ):
@@ -407,6 +430,14 @@ def solve_moments(chain, tol, max_iter, krylov):
     def absorbed(v):
         return Rx.T @ v[:n] + Rm.T @ v[n:]
 
-    probs = np.maximum(chain.start_absorbed + absorbed(y), 0.0)
-    weighted = np.maximum(chain.start_absorbed + absorbed(y + y2), 0.0)
-    return probs, weighted, it1 + it2, ok1 and ok2
+    probs = chain.start_absorbed + absorbed(y)
+    weighted = chain.start_absorbed + absorbed(y + y2)
+    # as _clip_negative: an option whose linearised probability is negative is never chosen;
+    # the rest is scaled back to 1, and the negative part counts as error
+    clipped = float(-probs[probs < 0.0].sum())
+    weighted = np.where(probs > 0.0, np.maximum(weighted, 0.0), 0.0)
+    probs = np.maximum(probs, 0.0)
+    if clipped > 0.0 and probs.sum() > 0.0:
+        scale = 1.0 / max(float(probs.sum()), 1.0)
+        probs, weighted = probs * scale, weighted * scale
+    return probs, weighted, it1 + it2, ok1 and ok2, clipped

@@ -469,6 +469,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         # with the reference term where the reference sums were refitted (a cut pilot)
         spread_p += closure.get("reference", (0.0, 0.0))[0]
         spread_rt += closure.get("reference", (0.0, 0.0))[1]
+        # and with the negative choices this pass clipped (the closure's error made visible)
+        spread_p += closure.get("clipped", 0.0)
         gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
                                                  or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
         if gross and (spread_p > atol or spread_rt > rt_rtol):
@@ -477,6 +479,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             what = ("the spread of the summed preference" if "reference" not in closure else
                     "the spread of the summed preference and the fit of its reference sums "
                     "(refitted after the pilot pass's closure ran away)")
+            if closure.get("clipped", 0.0) > 1e-3 * atol:
+                what += (f", with the {closure['clipped']:.2g} of negative choices its "
+                         "closure clipped,")
             reason = (f"{what} alone may change the probabilities "
                       f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
@@ -490,6 +495,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         err_p += tails[0][0] + tails[1][0]
         err_rt += tails[0][1] + tails[1][1]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
+        logger.debug("resolution %.3g: estimated error %.2g and %.2g, of which the closure's "
+                     "%.2g and %.2g", fine.resolution, err_p + spread_p, err_rt + spread_rt,
+                     spread_p, spread_rt)
         narrow = closure.get("narrow", False)
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
@@ -668,14 +676,14 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                       engine="plane", resolution=float(k))
         if solve["method"] == "propagate":
             probs = rt_pmf.sum(axis=0)
-            total = float(probs.sum() + mass)
-            if not abs(total - 1.0) <= tolerances[0]:
+            closure["clipped"] = tail_err[2]
+            if not tail_err[2] <= tolerances[0]:
                 # the first-order closure in the sum can grow without bound where the slopes
                 # T1 are large and the deliberation long; its answer is then no distribution
                 raise TooManyStates(
                     f"at resolution {k:.3g} the moment closure of the summed preference is "
-                    f"unstable for this model: the probabilities and the undecided share sum "
-                    f"to 1 {total - 1.0:+.2g}")
+                    f"unstable for this model: its choices and undecided mass turn negative "
+                    f"by {tail_err[2]:.2g} in all (atol={tolerances[0]:g})")
             times = np.arange(1, steps + 1, dtype=np.float64)
             return ThresholdProbabilities(
                 probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,
@@ -684,8 +692,9 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 tail_start=tail_start if tail_start < steps else None,
                 error_probabilities=tail_err[0] + escaped, error_mean_rt=tail_err[1],
                 **common)
-        probs, weighted, n_iter, ok = solve_moments(chain, solve["tol"], solve["max_iter"],
-                                                    _krylov)
+        probs, weighted, n_iter, ok, clipped = solve_moments(chain, solve["tol"],
+                                                             solve["max_iter"], _krylov)
+        closure["clipped"] = clipped
         if not ok:
             raise ValueError(
                 f"the iterative solver did not reach tol={solve['tol']:g} within "
@@ -733,6 +742,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 if state.get("cut"):
                     refit(k)
             result = run(k, state["delta"])
+            clipped = closure["clipped"]
             if state["delta"] > 0.0 and (first or not closure["settled"]):
                 # the closure's error: the change that a spread of the sum within the states
                 # smaller by a factor sqrt(2) makes; measured on the coarsest grid, and again
@@ -742,6 +752,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 closure.update(error=err, settled=not first or (
                     err[0] <= _RECHECK_SHARE * tolerances[0]
                     and err[1] <= _RECHECK_SHARE * tolerances[1]))
+            closure["clipped"] = clipped  # this pass's, not the smaller spread's
             return result
         return compute
 
