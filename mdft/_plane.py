@@ -29,9 +29,10 @@ _WIDTH = 6.5
 # Gauss-Legendre rule of the cut cells' pieces (smooth once split at their breaks, and no wider
 # than a standard deviation: six nodes are exact to about 1e-9 there).
 _PIECE_X, _PIECE_W = np.polynomial.legendre.leggauss(6)
-# Target cells that would receive less than this are left out (and the row renormalised);
-# 1e-8 instead of 1e-11 drops a quarter of the nonzeros and changes answers by < 1e-5.
-_CUT = 1e-8
+# Target cells that would receive less than this share of a step's staying mass are left out
+# (and the row renormalised). 1e-8 instead of 1e-11 dropped a quarter of the nonzeros; 1e-7
+# instead of 1e-8 drops another (docs/threshold_exact.md, section 2).
+_CUT = 1e-7
 
 
 @njit
