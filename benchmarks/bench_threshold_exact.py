@@ -13,6 +13,7 @@ per model and then the median and maximum errors and times.
     python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
     python benchmarks/bench_threshold_exact.py --ternary 20 --binary 0 --live --cache /tmp/refs
     python benchmarks/bench_threshold_exact.py --ranges wide --fallback simulation --binary 0
+    python benchmarks/bench_threshold_exact.py --ternary 40 --binary 0 --trials 0 --seed 8383
 
 ``--live`` adds a second, screened set of three-option models: draws (from
 another seed) whose simulation leaves more than half the trials undecided
@@ -116,12 +117,20 @@ def reference(model, theta, trials, max_steps, seed, cache):
 
 
 def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise"):
+    """The call's answer against the simulated reference; with ``trials=0``, the answer
+    alone, timed as the shorter of two calls (calls over a second once)."""
     start = time.perf_counter()
     try:
         res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
     except ValueError as exc:
         return None, time.perf_counter() - start, str(exc)
     seconds = time.perf_counter() - start
+    if trials == 0:
+        if seconds <= 1.0:
+            start = time.perf_counter()
+            mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
+            seconds = min(seconds, time.perf_counter() - start)
+        return dict(res=res), seconds, ""
     sim = reference(model, theta, trials, max_steps, seed, cache)
     dp = float(max(np.max(np.abs(res.probabilities - sim.probabilities)),
                    abs(res.p_undecided - sim.p_undecided)))
@@ -165,16 +174,30 @@ def run_set(label, models, n_options, args):
             print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.2f} s: "
                   f"{why[:110]}")
             continue
-        res, sim = out["res"], out["sim"]
+        res = out["res"]
+        size = "sim" if res.engine == "simulation" else res.n_states
+        if "sim" not in out:
+            rows.append((0.0, 0.0, seconds, 0.0, 0.0, res.engine == "simulation"))
+            print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {size:>7} {seconds:7.2f} "
+                  f"{'':>8} {'':>7} {res.error_probabilities:8.1e} {'':>8} {'':>8} "
+                  f"{res.error_mean_rt:8.1e}  {np.round(res.probabilities, 4)} "
+                  f"u={res.p_undecided:.3f}", flush=True)
+            continue
+        sim = out["sim"]
         rows.append((out["dp"], out["drt"], seconds, out["se"], out["drt_major"],
                      res.engine == "simulation"))
-        size = "sim" if res.engine == "simulation" else res.n_states
         print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f} {size:>7} {seconds:7.2f} "
               f"{out['dp']:8.4f} {out['se']:7.4f} {res.error_probabilities:8.1e} "
               f"{out['drt']:8.4f} {out['drt_major']:8.4f} {res.error_mean_rt:8.1e}  "
               f"{np.round(res.probabilities, 4)} u={res.p_undecided:.3f} / "
               f"{np.round(sim.probabilities, 4)} u={sim.p_undecided:.3f}", flush=True)
     times = [r[2] for r in rows] + [r[3] for r in refused]
+    if args.trials == 0:
+        print(f"{label}: {len(rows)} models answered ({sum(r[5] for r in rows)} of them by the "
+              f"simulation fallback), {len(refused)} refused; time (answered and refused) "
+              f"median {np.median(times):.2f} s max {np.max(times):.2f} s" if times else
+              f"{label}: no models")
+        return
     if rows:
         a = np.array(rows)
         print(f"{label}: {len(rows)} models answered ({int(a[:, 5].sum())} of them by the "
@@ -193,7 +216,9 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ternary", type=int, default=20, help="random three-option models")
     parser.add_argument("--binary", type=int, default=10, help="random two-option models")
-    parser.add_argument("--trials", type=int, default=1_000_000, help="simulated trials")
+    parser.add_argument("--trials", type=int, default=1_000_000,
+                        help="simulated trials (0: no reference; times the calls alone, the "
+                             "shorter of two calls)")
     parser.add_argument("--max-steps", type=int, default=3_000, help="step limit (both)")
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--live", action="store_true",
@@ -208,6 +233,10 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads of the chain (default: numba's, one per core)")
     args = parser.parse_args(argv)
+    if args.trials < 0:
+        parser.error(f"--trials must be at least 0, got {args.trials}")
+    if args.trials == 0 and args.live:
+        parser.error("--live screens the draws by simulation: it needs --trials > 0")
     if args.threads is not None:
         if args.threads < 1:
             parser.error(f"--threads must be at least 1, got {args.threads}")

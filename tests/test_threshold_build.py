@@ -221,6 +221,17 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
     with pytest.raises(SystemExit):
         bench.main(["--ranges", "huge", "--ternary", "0", "--binary", "0"])
     assert "--ranges: invalid choice: 'huge'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["--trials", "-1", "--ternary", "0", "--binary", "0"])
+    assert "--trials must be at least 0, got -1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["--trials", "0", "--live", "--ternary", "0", "--binary", "0"])
+    assert "--live screens the draws by simulation" in capsys.readouterr().err
+    # --trials 0 times the calls alone: a line per model and the summary, no reference
+    bench.main(["--trials", "0", "--ternary", "1", "--binary", "1", "--seed", "3",
+                "--max-steps", "500"])
+    out = capsys.readouterr().out
+    assert "3 options, unscreened: " in out and "2 options: " in out and "time" in out
     rng = np.random.default_rng(0)
     for _ in range(50):
         model, theta = bench.draw_model(rng, 3, "wide")
