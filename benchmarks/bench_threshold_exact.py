@@ -119,17 +119,19 @@ def reference(model, theta, trials, max_steps, seed, cache):
 def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise"):
     """The call's answer against the simulated reference; with ``trials=0``, the answer
     alone, timed as the shorter of two calls (calls over a second once)."""
+    def call():
+        start = time.perf_counter()
+        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
+        return res, time.perf_counter() - start
+
     start = time.perf_counter()
     try:
-        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
+        res, seconds = call()
     except ValueError as exc:
         return None, time.perf_counter() - start, str(exc)
-    seconds = time.perf_counter() - start
     if trials == 0:
         if seconds <= 1.0:
-            start = time.perf_counter()
-            mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
-            seconds = min(seconds, time.perf_counter() - start)
+            seconds = min(seconds, call()[1])
         return dict(res=res), seconds, ""
     sim = reference(model, theta, trials, max_steps, seed, cache)
     dp = float(max(np.max(np.abs(res.probabilities - sim.probabilities)),
@@ -193,10 +195,10 @@ def run_set(label, models, n_options, args):
               f"{np.round(sim.probabilities, 4)} u={sim.p_undecided:.3f}", flush=True)
     times = [r[2] for r in rows] + [r[3] for r in refused]
     if args.trials == 0:
-        print(f"{label}: {len(rows)} models answered ({sum(r[5] for r in rows)} of them by the "
-              f"simulation fallback), {len(refused)} refused; time (answered and refused) "
-              f"median {np.median(times):.2f} s max {np.max(times):.2f} s" if times else
-              f"{label}: no models")
+        if times:
+            print(f"{label}: {len(rows)} models answered ({sum(r[5] for r in rows)} of them by "
+                  f"the simulation fallback), {len(refused)} refused; time (answered and "
+                  f"refused) median {np.median(times):.2f} s max {np.max(times):.2f} s")
         return
     if rows:
         a = np.array(rows)
