@@ -199,6 +199,8 @@ def run_set(label, models, n_options, args):
             print(f"{label}: {len(rows)} models answered ({sum(r[5] for r in rows)} of them by "
                   f"the simulation fallback), {len(refused)} refused; time (answered and "
                   f"refused) median {np.median(times):.2f} s max {np.max(times):.2f} s")
+        else:
+            print(f"{label}: no models")
         return
     if rows:
         a = np.array(rows)
