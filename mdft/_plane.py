@@ -27,8 +27,11 @@ _SQRT2 = math.sqrt(2.0)
 # A window reaches this many component standard deviations around its mean.
 _WIDTH = 6.5
 # Gauss-Legendre rule of the cut cells' pieces (smooth once split at their breaks, and no wider
-# than a standard deviation: six nodes are exact to about 1e-9 there).
-_PIECE_X, _PIECE_W = np.polynomial.legendre.leggauss(6)
+# than a standard deviation). Four nodes: on 65,000 random cut cells (cells of 0.5-1.5
+# standard deviations, any orientation of the lines) the error of a cell's mass against a
+# twelve-node rule was at most 1.6e-7 of the component's mass (99 % below 4e-9), about the
+# cut below; six nodes took 5-7 % longer in all and moved no answer by 1e-6.
+_PIECE_X, _PIECE_W = np.polynomial.legendre.leggauss(4)
 # Target cells that would receive less than this share of a step's staying mass are left out
 # (and the row renormalised). 1e-8 instead of 1e-11 dropped a quarter of the nonzeros; 1e-7
 # instead of 1e-8 drops another (docs/threshold_exact.md, section 2).
@@ -156,7 +159,7 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     Integrates over ``x`` with the closed-form mass over ``y`` at each node:
     the range is split where the inside part of the column changes form
     (:func:`_breaks`), so that each piece is smooth, and each piece is
-    integrated by composite six-point Gauss-Legendre on panels no wider than
+    integrated by composite four-point Gauss-Legendre on panels no wider than
     ``sx``. A component much narrower than the cell along ``x`` is taken as a
     point there. :func:`cut_mass_with` is the same with the caller's buffers.
     """
