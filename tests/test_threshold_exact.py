@@ -566,6 +566,50 @@ def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
     assert geometric[2] > 6 * krylov[2]
 
 
+def test_krylov_start_follows_the_schedule_of_tries():
+    """A finer pass's first Krylov try is the last point of the schedule (250, doubled)
+    not after the coarser pass's tail start; without one, the schedule's first."""
+    from mdft._plane_chain import _KRYLOV_FIRST, krylov_start
+
+    assert krylov_start(None) == _KRYLOV_FIRST
+    assert krylov_start(0) == krylov_start(2 * _KRYLOV_FIRST - 1) == _KRYLOV_FIRST
+    assert krylov_start(2 * _KRYLOV_FIRST) == 2 * _KRYLOV_FIRST
+    assert krylov_start(9 * _KRYLOV_FIRST) == 8 * _KRYLOV_FIRST
+
+
+def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_grid(monkeypatch):
+    """A random long deliberation (seed 3 of the test draws, theta 39.7) whose coarse pass
+    fills its Krylov tail only at the second try: the finer pass that starts there gives
+    the very answer of the finer pass that tries from the first point on (its first try
+    fails as well), without the failed try's work."""
+    from mdft import _plane_chain
+    from mdft._plane_chain import (_KRYLOV_FIRST, build_moment_chain, krylov_start,
+                                   propagate_moments)
+
+    tries = []
+    tail = _plane_chain.krylov_tail
+    monkeypatch.setattr(_plane_chain, "krylov_tail",
+                        lambda *args: tries.append(args[3]) or tail(*args))
+    rng = np.random.default_rng(3)
+    random_model(rng, 3)
+    model, theta = random_model(rng, 3)
+    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+    budget = (1e-5, 3e-5)
+    coarse = propagate_moments(build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000), 6000,
+                               1e-14, budget)
+    assert coarse[3] == 2 * _KRYLOV_FIRST
+    fine = build_moment_chain(model, theta, 1.41, ref, 0.5, 60_000)
+    tries.clear()
+    every_try = propagate_moments(fine, 6000, 1e-14, budget)
+    assert tries == [_KRYLOV_FIRST, 2 * _KRYLOV_FIRST]
+    tries.clear()
+    later = propagate_moments(fine, 6000, 1e-14, budget, krylov_from=krylov_start(coarse[3]))
+    assert tries == [2 * _KRYLOV_FIRST]
+    assert later[3] == every_try[3] == 2 * _KRYLOV_FIRST
+    np.testing.assert_array_equal(later[0], every_try[0])
+    assert later[1] == every_try[1]
+
+
 def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
     """A random model (seed 777 of the benchmark's draws) whose moment closure lets the
     probabilities of some states turn negative: their signed sum fell below the stop
