@@ -455,7 +455,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     coarse = fine = None
     tails = [(0.0, 0.0)]
     refinements = 0
-    for compute in runs:
+    grid_errors = []  # each comparison's grid term (probabilities, mean times)
+    for index, compute in enumerate(runs):
         try:
             result = compute()
         except TooManyStates as exc:
@@ -525,6 +526,15 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if spread_p > 0.0 or spread_rt > 0.0:
             reason += (f", of which the moment closure of the summed preference, which no "
                        f"resolution lowers, accounts for {spread_p:.2g} and {spread_rt:.2g}")
+        if fine.engine == "plane":
+            grid_errors.append((err_p, err_rt))
+            # the passes still possible: each finer one has about twice the states
+            left = len(runs) - index - 1
+            left = min(left, int(math.log2(max_states / max(fine.n_states, 1))))
+            hopeless = _out_of_reach(grid_errors, (spread_p, spread_rt), (atol, rt_rtol), left)
+            if hopeless:
+                reason += hopeless
+                break
     if fallback == "simulation" and method == "propagate":
         reason = f"within max_states={max_states}: {reason}"
         if fine is not None:
@@ -539,6 +549,35 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
     )
+
+
+def _out_of_reach(grid_errors, spread, tolerances, left):
+    """Why no pass still possible can meet the tolerances, or "" (three options).
+
+    ``grid_errors``: the grid term of each trusted comparison so far (probabilities, mean
+    times; none where the noise is narrower than the cells); ``spread``: the closure's
+    term; ``left``: the passes still possible. From the third comparison on (the first is
+    not yet in the asymptotic range), the grid term is taken to fall per refinement by the
+    smallest of the last two ratios observed and of 1/2 (second order, as section 4 of
+    ``docs/threshold_exact.md`` takes it): an optimistic rate. If even then it stays above
+    the room the closure's term leaves in either tolerance after every pass still possible,
+    refining is hopeless.
+    """
+    if len(grid_errors) < 3 or left < 1:
+        return ""  # too few comparisons to tell; or the last pass, refused as it stands
+    names = ("the probabilities", "the mean response times")
+    for q in range(2):
+        room = tolerances[q] - spread[q]
+        g0, g1, g2 = (e[q] for e in grid_errors[-3:])
+        if room <= 0.0 or g2 <= room:
+            continue
+        rate = min(0.5, g2 / g1 if g1 > 0.0 else 0.5, g1 / g0 if g0 > 0.0 else 0.5)
+        if g2 * rate**left > room:
+            return (f"; its grid term in {names[q]} went {g0:.2g}, {g1:.2g}, {g2:.2g} over the "
+                    f"last three comparisons, and falling by {rate:.2g} per refinement it "
+                    f"would stay above the {room:.2g} the closure leaves after the "
+                    f"{left} finer grid{'s' if left > 1 else ''} still possible")
+    return ""
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,
