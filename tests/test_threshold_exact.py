@@ -1118,21 +1118,40 @@ def test_cut_cell_mass_matches_a_fine_column_sum(mx, my, sx, sy, hx, hy, offset,
     assert abs(got - want) <= 2e-5 * full + 1e-10
 
 
+# Two models of the benchmark's draws with seed 9494 (bench_threshold_exact.py): M, w, phi1,
+# phi2, beta, sigma2 and theta.
+SEED_9494 = {
+    33: ([[2.874017742139143, 2.668734790645318, 2.1522316833901143],
+          [0.8602951153455574, 1.876123503407832, 0.8506050201324691],
+          [2.0211776395631773, 3.454816279337788, 2.8316879470465746]],
+         [0.5384674753800045, 0.2408900751584326, 0.2206424494615628],
+         0.018250502879864912, 0.015736134888981443, 10.978119209913572, 1.1889655167841526,
+         40.498127632152865),
+    37: ([[3.81129259018981, 3.744180174880957, 1.7281712835715515],
+          [0.934485289373602, 2.683136964599837, 3.0100999212683086],
+          [0.7894750094561018, 0.8376235481255265, 3.8576912705314865]],
+         [0.19704958081710364, 0.35516004724266126, 0.44779037194023513],
+         0.007801302776427911, 0.08288679093318242, 10.657754046404271, 1.1115908130431125,
+         16.615415395407865),
+}
+
+
+def seed_9494_model(index):
+    """``(model, theta)``: model ``index`` of :data:`SEED_9494`."""
+    M, w, phi1, phi2, beta, sigma2, theta = SEED_9494[index]
+    return drawn(M, w, phi1=phi1, phi2=phi2, beta=beta, sigma2=sigma2), theta
+
+
 def test_a_refinement_that_cannot_reach_the_tolerances_is_refused_early():
     """Seed 9494 model 33 of the benchmark's draws: the closure's term takes half of
     rt_rtol and the grid term of the mean times falls by less than half per refinement
     (0.033, 0.013, 0.010); even at an optimistic rate it stays above the room left after
     the two grids still possible (which took 16 s more to find that out), so the call
     refuses after the resolution-0.5 pass and says why."""
-    model = drawn([[2.874017742139143, 2.668734790645318, 2.1522316833901143],
-                   [0.8602951153455574, 1.876123503407832, 0.8506050201324691],
-                   [2.0211776395631773, 3.454816279337788, 2.8316879470465746]],
-                  [0.5384674753800045, 0.2408900751584326, 0.2206424494615628],
-                  phi1=0.018250502879864912, phi2=0.015736134888981443,
-                  beta=10.978119209913572, sigma2=1.1889655167841526)
+    model, theta = seed_9494_model(33)
     with pytest.raises(ValueError, match=r"grid term in the mean response times went .* "
                                          r"would stay above .* after the 2 finer grids"):
-        threshold_probabilities(model, 40.498127632152865, fallback="raise")
+        threshold_probabilities(model, theta, fallback="raise")
 
 
 @pytest.mark.parametrize("history, left, hopeless", [
@@ -1160,13 +1179,8 @@ def test_a_slow_refinement_within_reach_is_carried_to_the_end():
     rt_rtol and the grid term falls 0.0022, 0.0010, 0.0002 from resolution 0.71 on; the
     early refusal's optimistic rate lets it refine, and it is answered at resolution 0.25
     within the tolerances."""
-    model = drawn([[3.81129259018981, 3.744180174880957, 1.7281712835715515],
-                   [0.934485289373602, 2.683136964599837, 3.0100999212683086],
-                   [0.7894750094561018, 0.8376235481255265, 3.8576912705314865]],
-                  [0.19704958081710364, 0.35516004724266126, 0.44779037194023513],
-                  phi1=0.007801302776427911, phi2=0.08288679093318242,
-                  beta=10.657754046404271, sigma2=1.1115908130431125)
-    res = threshold_probabilities(model, 16.615415395407865, fallback="raise")
+    model, theta = seed_9494_model(37)
+    res = threshold_probabilities(model, theta, fallback="raise")
     assert res.resolution == pytest.approx(0.25)
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
 
