@@ -286,8 +286,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         below ``tol`` or the geometric tail is reached (``tail_tol``).
         ``"solve"`` solves ``(I - Q^T) y = x_1`` (sparse LU up to 3,000
         states, above that BiCGSTAB, with restarted GMRES if it fails) for
-        the long-run (unlimited time) probabilities and mean response times;
-        several times faster than ``"propagate"`` on large chains.
+        the long-run (unlimited time) probabilities and mean response times.
+        For three options it was 1.4-9.4 times slower than ``"propagate"`` on
+        random models (``docs/threshold_exact.md``, section 6).
     tol : float, default 1e-10
         ``"propagate"``: undecided mass at which propagation stops.
         ``"solve"``: relative residual of the iterative solver.
@@ -334,7 +335,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         column sums of magnitude above 1, as with ``phi2 > 2 / n_options`` and
         ``phi1 = 0``); a model for which
         the estimated error cannot be brought below the tolerances within
-        ``max_states`` states and the fallback is off or over its budget.
+        ``max_states`` states (or, judged from the last three comparisons,
+        within the finer grids still possible) and the fallback is off or over
+        its budget.
 
     Notes
     -----
