@@ -256,7 +256,7 @@ def pilot_pass(chain, max_steps, tol, budget=(0.0, 0.0), floor=0.01):
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
-                      in_parts=None, krylov=True, krylov_from=_KRYLOV_FIRST):
+                      in_parts=None, krylov=True, krylov_from=None):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
     tail_errors, escaped)``.
 
@@ -277,9 +277,9 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the answer is the same whatever the
     number of threads, and differs from the serial one by rounding (the parts' sums are
     added in another order). ``krylov``: try the Krylov tail after ``_KRYLOV_FIRST`` steps,
-    and after every doubling of them, until it is within the budget; ``krylov_from``: leave
-    out the tries before that step (a coarser pass of the same model whose tail started
-    there: :func:`krylov_start`).
+    and after every doubling of them, until it is within the budget; ``krylov_from``: the
+    step where a coarser pass of the same model filled its tail (None: none did), whose
+    failed tries are left out (:func:`krylov_start`).
     """
     return _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
                       krylov_from)[0]
@@ -299,7 +299,7 @@ def krylov_start(tail_start):
 
 
 def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
-               krylov_from=_KRYLOV_FIRST):
+               krylov_from=None):
     """:func:`propagate_moments`'s answer, and whether a pilot pass was cut short."""
     n = chain.n_states
     x = np.zeros(n)
@@ -313,11 +313,9 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
     if in_parts is None:
         in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     use_krylov = krylov and not second and budget[0] > 0.0
-    pause = _KRYLOV_FIRST if use_krylov else max_steps
-    tries = 0
-    while use_krylov and 2 * pause <= krylov_from and pause < max_steps:
-        # the tries a coarser pass needed are left out, each counting as one made
-        pause, tries = min(2 * pause, max_steps), tries + 1
+    pause = min(krylov_start(krylov_from), max_steps) if use_krylov else max_steps
+    # the tries left out count as made: the dimensions go on from there
+    tries = (pause // _KRYLOV_FIRST).bit_length() - 1 if use_krylov else 0
     if second:
         pause = min(_PILOT_CHUNK, max_steps)
         kept = occ.copy()

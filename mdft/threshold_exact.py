@@ -31,9 +31,9 @@ from . import _lattice
 from ._lattice_chain import build_chain
 from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
-from ._plane_chain import (TooManyStates, build_moment_chain, krylov_start, narrow_axes,
-                           near_occupied, pilot_pass, plane_geometry, propagate_moments,
-                           reference_sums, solve_moments)
+from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
+                           pilot_pass, plane_geometry, propagate_moments, reference_sums,
+                           solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -665,7 +665,7 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     """
     kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
-                 near=None, krylov_from=krylov_start(None))
+                 near=None, krylov_from=None)
     # the occupied region of each pass limits the rows of the next, finer one ("propagate":
     # the solver of the long run has no step limit, so every reachable state may matter)
     limit = solve["method"] == "propagate"
@@ -713,8 +713,8 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                              "building every row", k, out[6])
             rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
             state["near"] = near_occupied(chain, occ)
-            # the next pass leaves out the Krylov tries this one needed
-            state["krylov_from"] = krylov_start(tail_start if tail_start < steps else None)
+            # the next pass leaves out the Krylov tries that failed on this one
+            state["krylov_from"] = tail_start if tail_start < steps else None
         else:
             chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
         closure["narrow"] = chain.narrow
