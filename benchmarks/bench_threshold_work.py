@@ -55,7 +55,7 @@ def occupied_step_seconds(chain, steps=60, repeats=2):
                                 chain.r1, chain.sref, chain.snext, chain.b_sum,
                                 chain.delta**2, x, m, q, rt_pmf, occ, 0.0, False, 0.0, 0.0,
                                 0.01, errors, in_parts, chain.frontier, steps, 1,
-                                *tail_track(steps, n))
+                                *tail_track(steps, n), np.inf)
         best = min(best, (time.perf_counter() - start) / (steps - 1))
     return best
 

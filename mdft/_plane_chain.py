@@ -256,7 +256,7 @@ def pilot_pass(chain, max_steps, tol, budget=(0.0, 0.0), floor=0.01):
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
-                      in_parts=None, krylov=True, krylov_from=None):
+                      in_parts=None, krylov=True, krylov_from=None, escape_max=math.inf):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
     tail_errors, escaped)``.
 
@@ -279,10 +279,12 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     added in another order). ``krylov``: try the Krylov tail after ``_KRYLOV_FIRST`` steps,
     and after every doubling of them, until it is within the budget; ``krylov_from``: the
     step where a coarser pass of the same model filled its tail (None: none did), whose
-    failed tries are left out (:func:`krylov_start`).
+    failed tries are left out (:func:`krylov_start`). ``escape_max``: once more mass than
+    this has reached frontier states the run stops there, its answer incomplete (``escaped``
+    above ``escape_max`` says so; the caller builds the pass again with every row).
     """
     return _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
-                      krylov_from)[0]
+                      krylov_from, escape_max)[0]
 
 
 def krylov_start(tail_start):
@@ -299,7 +301,7 @@ def krylov_start(tail_start):
 
 
 def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
-               krylov_from=None):
+               krylov_from=None, escape_max=math.inf):
     """:func:`propagate_moments`'s answer, and whether a pilot pass was cut short."""
     n = chain.n_states
     x = np.zeros(n)
@@ -328,8 +330,10 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
             chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
             chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol,
             bool(second), float(budget[0]), float(budget[1]), float(floor), errors,
-            bool(in_parts), chain.frontier, pause, t_first, *track)
+            bool(in_parts), chain.frontier, pause, t_first, *track, escape_max - escaped)
         escaped += errors[2]
+        if escaped > escape_max:
+            break  # stopped where the escaped mass passed escape_max: no answer
         dropped += errors[0]  # with the geometric tail's change, if it was filled
         if second:
             balance = float(np.abs(rt_pmf[:steps]).sum() + np.abs(x).sum() + escaped) - 1.0

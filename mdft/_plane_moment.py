@@ -714,7 +714,7 @@ def apply_step(row_ptr, cols, t0, t1, sref, snext, b_sum, dvar, x, m, y, ym, in_
 @njit
 def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q, rt_pmf, occ,
               tol, second, budget_p, budget_rt, floor, errors, in_parts, frontier, pause,
-              t_first, hazard, done, snaps, dist):
+              t_first, hazard, done, snaps, dist, escape_max):
     """Apply the moment chain step by step (see the module docstring).
 
     With ``in_parts``, each step's scatter runs in :data:`PARTS` parts on numba's threads
@@ -735,7 +735,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     ``budget_p > 0``, once the tail may be filled geometrically with a change
     within ``budget_p`` and ``budget_rt`` (:func:`mdft._plane_tail.check`;
     the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
-    :func:`build`) leaves the chain; its sum is left in ``errors[2]``. ``occ[:, 0]``
+    :func:`build`) leaves the chain; its sum is left in ``errors[2]``, and once it exceeds
+    ``escape_max`` the run stops after that step (the pass is to be built again with every
+    row, so the rest of its steps would be wasted). ``occ[:, 0]``
     accumulates ``x`` over the steps (where the next, finer pass needs rows). With
     ``pause < rt_pmf.shape[0]``, returns after row ``pause - 1`` with ``x`` and ``m`` the
     distribution after ``pause`` steps (no tail filled), unless it stopped before; a
@@ -850,6 +852,11 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                     q0s[r] = q0
                 continue
             _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu, q0, second, y, ym, yq)
+        if escaped > escape_max:
+            errors[0] = dropped
+            errors[1] = 0.0
+            errors[2] = escaped
+            return t + 1, n_steps, mass
         if in_parts:
             _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second)
             _sum_parts(acc, y, ym, yq, second)

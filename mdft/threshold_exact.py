@@ -705,7 +705,8 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                                            near)
                 out = propagate_moments(chain, steps, solve["tol"], budget,
                                         floor=_RT_WEIGHT_FLOOR,
-                                        krylov_from=state["krylov_from"])
+                                        krylov_from=state["krylov_from"],
+                                        escape_max=math.inf if near is None else _ESCAPE_MAX)
                 if near is None or out[6] <= _ESCAPE_MAX:
                     break
                 # the coarser pass did not foresee where the mass goes: every row after all

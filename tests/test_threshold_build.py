@@ -315,6 +315,25 @@ def test_mass_reaching_a_frontier_state_leaves_and_is_counted():
     assert rt_pmf.sum() + undecided + escaped == pytest.approx(1.0, abs=1e-9)
 
 
+def test_a_run_stops_at_the_step_where_the_escaped_mass_passes_its_limit():
+    """With ``escape_max``, a run whose mass reaches frontier states stops at the step where
+    the escaped mass first exceeds the limit (the pass is to be built again), and says so by
+    the escaped mass it returns; without it, the run goes on to the end."""
+    from mdft._plane_chain import propagate_moments
+
+    model, theta = _one_sided_model()
+    ref = np.array([0.0, 0.0, 0.0])
+    full = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000)
+    tight = build_moment_chain(model, theta, 1.0, ref, 0.4, 60_000, (full.pos[:1], full.h))
+    whole = propagate_moments(tight, 400, 1e-10)
+    limit = 1e-3 * whole[6]
+    stopped = propagate_moments(tight, 400, 1e-10, escape_max=limit)
+    assert stopped[6] > limit
+    assert stopped[2] < whole[2]
+    # the step before the last one run had let out no more than the limit
+    assert propagate_moments(tight, stopped[2] - 1, 1e-10)[6] <= limit
+
+
 def test_a_pass_whose_mass_escapes_its_rows_is_built_again_with_every_row(monkeypatch, caplog):
     """``threshold_probabilities`` rebuilds a pass with every row when more than
     ``_ESCAPE_MAX`` of its mass reached states without one: forcing a region that holds only

@@ -914,7 +914,7 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_par
         np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
         np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
         b, delta**2, x, m, q, rt_pmf, np.zeros((2, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(3),
-        in_parts, np.zeros(2, dtype=bool), 2, 1, *tail_track(2, 2))
+        in_parts, np.zeros(2, dtype=bool), 2, 1, *tail_track(2, 2), np.inf)
     assert x[1] == pytest.approx(t0)
     assert m[1] == pytest.approx(s_next * t0 + b * t1 * delta**2)
 
