@@ -853,10 +853,8 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 continue
             _scatter_row(row_ptr, cols, t0, t1, r, xr, u, carry, cu, q0, second, y, ym, yq)
         if escaped > escape_max:
-            errors[0] = dropped
-            errors[1] = 0.0
-            errors[2] = escaped
-            return t + 1, n_steps, mass
+            steps = t + 1
+            break  # no answer: the pass is built again
         if in_parts:
             _scatter_parts(row_ptr, cols, t0, t1, src, q0s, acc, second)
             _sum_parts(acc, y, ym, yq, second)
@@ -889,7 +887,8 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
             errors[0] += dropped
             errors[2] = escaped
             return steps, t + 1, fill(rt_pmf, t, mass, min(max(hazard[t], 0.0), 1.0), sigma)
-    # no tail was filled: the last check's estimate does not apply
+    # no tail was filled (or the escape stopped the run): the last check's estimate does not
+    # apply
     errors[0] = dropped
     errors[1] = 0.0
     errors[2] = escaped
