@@ -551,3 +551,104 @@ def decide_chunks(states, bounds, M, cuts, phi1, phi2, beta, noise_sd, n_steps, 
     for c in prange(n_chunks):
         decide_chunk(states[c], bounds[c], bounds[c + 1], M, cuts, phi1, phi2, beta, noise_sd,
                      n_steps, out)
+
+
+# ---------------------------------------------------------------- reach bound (threshold)
+@njit
+def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
+    """Upper bound on the probability that some preference reaches ``theta`` within
+    ``max_steps`` steps of ``P(t) = S P(t-1) + C (M W(t) + eps(t))``.
+
+    ``P_i(t)`` is its mean ``a_i(t) = (S^t P0)_i + sum_{k<t} (S^k C M w)_i`` plus
+    ``Z = sum_{k<t} (X_k + Y_k)``, independent zero-mean terms, one per earlier step
+    ``t - k``: the attention term ``X_k = (S^k C M (e_j - w))_i``, between its
+    smallest and largest value over the attributes with ``w_j > 0``, and the Gaussian
+    noise term ``Y_k`` of variance ``noise_var (S^k C C^T S^kT)_ii``. With
+    ``z = theta - a_i(t) > 0``, ``P(Z >= z)`` is at most the smaller of Hoeffding's
+    ``exp(-z^2 / (2 H))`` (``H``: the noise variances plus a quarter of each attention
+    term's range squared) and Bernstein's ``exp(-z^2 / (2 (V + b z / 3)))`` (``V``: the
+    variance of ``Z``; ``b``: the largest value an attention term takes; the Gaussian
+    terms meet Bernstein's moment condition for any ``b``). The union over options and
+    steps bounds the probability of any decision. Returns 1.0 (no bound) where some mean
+    reaches ``theta`` or a power of ``S`` stops being finite. Once the sums no longer
+    change in floating point, every later step adds the same terms, counted at once.
+    """
+    n = S.shape[0]
+    m = CM.shape[1]
+    Sk = np.eye(n)
+    nxt = np.empty((n, n))
+    A = np.empty((n, m))
+    x = P0.copy()
+    x_next = np.empty(n)
+    drift = np.zeros(n)
+    hoeffding = np.zeros(n)
+    variance = np.zeros(n)
+    top = np.zeros(n)
+    total = 0.0
+    for k in range(max_steps):
+        # step t = k + 1: the terms of S^k join the sums, and S^t P0 = S (S^k P0)
+        settled = True
+        for i in range(n):
+            mean = 0.0
+            for j in range(m):
+                acc = 0.0
+                for l in range(n):
+                    acc += Sk[i, l] * CM[l, j]
+                A[i, j] = acc
+                mean += acc * w[j]
+            lo = math.inf
+            hi = -math.inf
+            spread = 0.0
+            for j in range(m):
+                if w[j] > 0.0:
+                    lo = min(lo, A[i, j])
+                    hi = max(hi, A[i, j])
+                    spread += w[j] * (A[i, j] - mean) ** 2
+            gauss = 0.0
+            for l in range(n):
+                acc = 0.0
+                for r in range(n):
+                    acc += Sk[i, r] * C[r, l]
+                gauss += acc * acc
+            gauss *= noise_var
+            acc = 0.0
+            for l in range(n):
+                acc += S[i, l] * x[l]
+            x_next[i] = acc
+            new_h = hoeffding[i] + 0.25 * (hi - lo) ** 2 + gauss
+            new_v = variance[i] + spread + gauss
+            if (drift[i] + mean != drift[i] or new_h != hoeffding[i]
+                    or new_v != variance[i] or x_next[i] != x[i]):
+                settled = False
+            drift[i] += mean
+            hoeffding[i] = new_h
+            variance[i] = new_v
+            top[i] = max(top[i], hi - mean)
+        step = 0.0
+        for i in range(n):
+            x[i] = x_next[i]
+            z = theta - (x[i] + drift[i])
+            if not (z > 0.0 and math.isfinite(hoeffding[i])):
+                return 1.0
+            if hoeffding[i] > 0.0:
+                exponent = z * z / hoeffding[i]
+                spread = variance[i] + top[i] * z / 3.0
+                if spread > 0.0:
+                    exponent = max(exponent, z * z / spread)
+                step += math.exp(-0.5 * exponent)
+        if settled:
+            # every later step adds the same terms
+            return min(1.0, total + step * (max_steps - k))
+        total += step
+        if total >= 1.0:
+            return 1.0
+        for i in range(n):
+            for l in range(n):
+                acc = 0.0
+                for r in range(n):
+                    acc += S[i, r] * Sk[r, l]
+                nxt[i, l] = acc
+        for i in range(n):
+            for l in range(n):
+                Sk[i, l] = nxt[i, l]
+    return total

@@ -29,6 +29,7 @@ import scipy.sparse.linalg as spla
 
 from . import _lattice
 from ._lattice_chain import build_chain
+from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
 from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
@@ -126,7 +127,9 @@ class ThresholdProbabilities:
     n_states : int
         Number of transient states of the chain.
     method : str
-        ``"propagate"``, ``"solve"`` or ``"simulation"`` (the fallback).
+        ``"propagate"``, ``"solve"``, ``"simulation"`` (the fallback) or
+        ``"bound"`` (no option can be chosen within ``max_steps`` steps but
+        with a probability that the tolerances neglect).
     n_iter : int
         Steps propagated, iterations of the linear solver (0 for a direct
         solve), or trials simulated by the fallback.
@@ -137,9 +140,10 @@ class ThresholdProbabilities:
         First row of ``rt_pmf`` filled in geometrically (see ``tail_tol``),
         or None when every step was propagated.
     engine : str
-        ``"lattice"`` (two options), ``"plane"`` (three options) or
+        ``"lattice"`` (two options), ``"plane"`` (three options),
         ``"simulation"`` (the chain refused and ``fallback="simulation"``
-        answered; ``n_states`` is then 0).
+        answered; ``n_states`` is then 0) or ``"bound"`` (every trial ends
+        undecided but for at most ``error_probabilities``; no chain built).
     resolution : float
         Two options: the lattice spacing in per-step standard deviations of
         the preference difference; three options: the cell size in per-step
@@ -147,7 +151,8 @@ class ThresholdProbabilities:
     error_probabilities : float
         Estimated error of ``probabilities`` and ``p_undecided``: the largest
         change against the same computation at a coarser resolution (the
-        simulation fallback: three standard errors).
+        simulation fallback: three standard errors; ``"bound"``: the bound on
+        the probability of deciding at all).
     error_mean_rt : float
         Estimated relative error of ``mean_response_times``, measured the
         same way; options chosen with probability ``p < 0.01`` weigh in with
@@ -197,8 +202,9 @@ class ThresholdProbabilities:
         undecided   0.0000
         estimated error: probabilities ..., mean RT ... %
         """
-        size = (f"{self.n_iter} trials" if self.engine == "simulation"
-                else f"{self.n_states} states")
+        size = {"simulation": f"{self.n_iter} trials",
+                "bound": f"no decision within {self.max_steps} steps"}.get(
+                    self.engine, f"{self.n_states} states")
         lines = [f"Threshold stopping, theta = {self.theta:g} ({self.engine}, {size})",
                  f"{'option':>6}  {'probability':>11}  {'mean RT (steps)':>15}"]
         for i, (p, rt) in enumerate(zip(self.probabilities, self.mean_response_times)):
@@ -341,6 +347,17 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
 
     Notes
     -----
+    First (``method="propagate"``, any number of options), the probability
+    that some preference reaches ``theta`` within ``max_steps`` steps is
+    bounded from the mean path and the spread of the linear dynamics
+    (Hoeffding's and Bernstein's bounds on the attention switches, the
+    Gaussian noise, a union over options and steps; well under a
+    millisecond). Where that bound is within ``atol`` and, weighed as a
+    rarely chosen option's mean time is, within ``rt_rtol`` (a bound of at
+    most ``0.01 * rt_rtol``), the answer is "undecided" (``engine="bound"``:
+    probabilities 0, ``p_undecided`` 1, mean times NaN) with the bound as
+    its error, and no chain is built.
+
     Every valence ``C (M W + eps)`` sums to zero, so only the feedback ``S``
     moves the summed preference ``s = 1^T P``, deterministically. The chain's
     states are grid cells of the zero-sum plane (one axis for two options,
@@ -421,6 +438,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         )
 
     if n > _MAX_OPTIONS:
+        bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
+        if bounded is not None:
+            return bounded
         if fallback == "simulation" and method == "propagate":
             reason = f"no chain for {n} options (at most {_MAX_OPTIONS})"
             logger.info("threshold_probabilities: %s; simulating", reason)
@@ -444,6 +464,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             f"the contrast C must have columns summing to zero (largest column sum {col:.3g}); "
             "the method relies on valences that leave the summed preference unchanged"
         )
+    bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
+    if bounded is not None:
+        return bounded
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0), settled=True)
@@ -552,6 +575,20 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
     )
+
+
+def _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method):
+    """The answer "undecided" where the bound on deciding at all meets the tolerances
+    (``method="propagate"`` only: the long run has no step limit), else None."""
+    if method != "propagate":
+        return None
+    bound = decision_bound(model, theta, max_steps)
+    if not within_tolerances(bound, atol, rt_rtol):
+        return None
+    logger.info("threshold_probabilities: some option is chosen within %d steps with "
+                "probability at most %.2g; answering undecided", max_steps, bound)
+    return ThresholdProbabilities(theta=float(theta),
+                                  **undecided_answer(model.n_options, max_steps, bound))
 
 
 def _out_of_reach(grid_errors, spread, tolerances, left):
