@@ -111,7 +111,9 @@ class ThresholdProbabilities:
         ``t + 1``. None for ``method="solve"``.
     mean_response_times : ndarray, shape (n_options,)
         Mean decision step given that option ``i`` is chosen (within
-        ``max_steps`` for ``"propagate"``); NaN for an option never chosen.
+        ``max_steps`` for ``"propagate"``); NaN for an option never chosen,
+        or chosen so rarely (probabilities near the rounding of the chain)
+        that its mean comes out below one step.
     theta : float
         The threshold.
     max_steps : int or None
@@ -847,8 +849,12 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
 
 # ------------------------------------------------------------------ solvers
 def _mean_rt(weighted, probs):
+    """Mean decision steps ``weighted / probs``; NaN for an option never chosen, and for one
+    chosen so rarely that its mean comes out below one step (a mean the chain's rounding
+    does not resolve: every decision takes at least one step)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(probs > 0, weighted / np.where(probs > 0, probs, 1.0), np.nan)
+        mean = weighted / np.where(probs > 0, probs, 1.0)
+    return np.where((probs > 0) & (mean >= 1.0), mean, np.nan)
 
 
 def _solve_chain(chain, theta, spacing, spec, *, method, max_steps, tol, tail_tol, max_iter):
@@ -936,10 +942,12 @@ def _error_estimate(fine, coarse):
     err_rt = 0.0
     for i, p in enumerate(fine.probabilities):
         a, b = fine.mean_response_times[i], coarse.mean_response_times[i]
-        if p <= 0.0 or not (np.isfinite(a) and np.isfinite(b)):
+        if p <= 0.0:
             continue
         weight = min(1.0, p / _RT_WEIGHT_FLOOR)
-        err_rt = max(err_rt, weight * abs(a - b) / a)
+        # a mean time only one side resolves (_mean_rt) counts as wrong by 100 %
+        change = abs(a - b) / a if np.isfinite(a) and np.isfinite(b) else 1.0
+        err_rt = max(err_rt, weight * change)
     return err_p, float(err_rt)
 
 

@@ -29,6 +29,7 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -1195,3 +1196,28 @@ def test_an_unstable_moment_closure_is_refused_with_its_reason():
     with pytest.raises(ValueError, match="moment closure of the summed preference is "
                                          "unstable for this model"):
         threshold_probabilities(model, 41.98, max_steps=3000, fallback="raise")
+
+
+def test_a_mean_time_below_one_step_is_unresolved_and_its_change_counts_in_full():
+    # at a probability near the chain's rounding (1e-74) the weighted time can come out 0, a
+    # mean of 0 steps: reported as NaN, not as a time; and the error estimate counts a mean
+    # that only one grid resolves as wrong by 100 %, weighed by p / 0.01, instead of dividing
+    # by zero (an infinite estimate) or dropping it
+    means = threshold_exact._mean_rt(np.array([0.0, 0.3, 2.0, 0.0]),
+                                     np.array([1e-74, 0.3, 0.5, 0.0]))
+    np.testing.assert_array_equal(means, [np.nan, 1.0, 4.0, np.nan])
+
+    def answer(p, rt):
+        return SimpleNamespace(probabilities=np.array(p), p_undecided=1.0 - sum(p),
+                               mean_response_times=np.array(rt, dtype=float))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        err_p, err_rt = threshold_exact._error_estimate(
+            answer([1e-74, 0.3, 0.5], [np.nan, 10.0, 20.0]),
+            answer([3e-68, 0.3, 0.5], [5e7, 10.02, 20.0]))
+        assert err_p == pytest.approx(3e-68, rel=1e-6) and err_rt == pytest.approx(0.002)
+        # an option that appears on the finer grid only: its mean time is unchecked
+        _, err_rt = threshold_exact._error_estimate(answer([5e-4, 0.3, 0.5], [30.0, 10.0, 20.0]),
+                                                    answer([0.0, 0.3, 0.5], [np.nan, 10.0, 20.0]))
+        assert err_rt == pytest.approx(0.05)
