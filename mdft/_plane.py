@@ -160,7 +160,8 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     the range is split where the inside part of the column changes form
     (:func:`_breaks`), so that each piece is smooth, and each piece is
     integrated by composite four-point Gauss-Legendre on panels no wider than
-    ``sx``. A component much narrower than the cell along ``x`` is taken as a
+    ``sx``, nor than ``sy |ey_i / ex_i|`` for a line ``i`` that cuts the piece's
+    columns (the distance along ``x`` over which it moves their end by ``sy``). A component much narrower than the cell along ``x`` is taken as a
     point there. :func:`cut_mass_with` is the same with the caller's buffers.
     """
     cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
@@ -196,7 +197,17 @@ def cut_mass_with(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound, cdf_lo, cdf
         p1 = ends[piece + 1]
         if p1 <= p0:
             continue
-        n_pan = min(max(int(math.ceil((p1 - p0) / sx)), 1), 64)
+        # panels no wider than sx, nor than the distance along x over which a line that
+        # cuts the column moves its end by sy (the column's mass then changes on that scale)
+        limit = sx
+        if sy > 0.0:
+            xm = 0.5 * (p0 + p1)
+            for i in range(len(ex)):
+                if abs(ey[i]) > 1e-14 and abs(ex[i]) > 1e-14:
+                    y = (bound - ex[i] * xm) / ey[i]
+                    if ylo < y and y < yhi:
+                        limit = min(limit, sy * abs(ey[i] / ex[i]))
+        n_pan = min(max(int(math.ceil((p1 - p0) / limit)), 1), 64)
         step = (p1 - p0) / n_pan
         acc = 0.0
         for p in range(n_pan):
