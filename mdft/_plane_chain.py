@@ -44,6 +44,10 @@ _PARTS_MIN_NONZEROS = 20_000
 # _ESCAPE_MAX of the mass reaches a state without one).
 _NEAR_OCCUPATION = 1e-14
 _NEAR_SD = 2.0
+# The closure's plane probe takes each cell's reference sum from the mean sum of the walks
+# in it where the cell held at least this share of the occupation (mean_sums); elsewhere
+# from the fitted plane.
+_MAP_OCCUPATION = 1e-9
 # Cells of work space (8 bytes each) the build's parallel parts may allocate together.
 _PART_WORK_CELLS = 12_000_000
 # Room for a source's cells in the build's first block (widened as it meets wider sources).
@@ -173,6 +177,9 @@ class MomentChain:
     frontier: np.ndarray
     #: Per-step standard deviation of the model's own Gaussian along the two grid axes.
     step_sd: tuple
+    #: Centre of the grid's cell (0, 0) and the index box's size (cells along each axis).
+    origin: tuple = (0.0, 0.0)
+    box: tuple = (0, 0)
     #: The noise is narrower than the cell over sqrt(3) along either axis: the variance
     #: correction then takes width from the attention jumps along it, and answers at this
     #: grid are not trusted (``docs/threshold_exact.md``, section 8).
@@ -190,13 +197,16 @@ def _build_parts(box):
     return int(max(1, min(numba.get_num_threads(), 8, _PART_WORK_CELLS // (3 * box))))
 
 
-def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
+def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, ref_map=None):
     """The moment chain at resolution ``kappa`` with reference sums ``ref`` (see
     :func:`mdft._plane_moment.build`) and spread ``delta``.
 
     ``near = (points, (r1, r2))``: only the cells within ``r1`` and ``r2`` (along the grid
     axes) of one of ``points`` (rows ``(z1, z2)``) get rows; the other states reached are
     frontier states (:class:`MomentChain`). None: every state reached gets its row.
+    ``ref_map``: :func:`mean_sums` of a coarser pass, whose cells' mean sums replace the
+    plane ``ref`` as the reference sums of the cells they cover (None: the plane
+    everywhere).
 
     Raises TooManyStates when the reachable states exceed ``max_states`` or a
     step lands outside every cell.
@@ -216,12 +226,14 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
         points, (r1, r2) = near
         _plane_moment.mark_near(allowed, np.ascontiguousarray(points, dtype=np.float64),
                                 g["o1"], g["o2"], g["h1"], g["h2"], float(r1), float(r2))
+    cells_map, map_grid = (np.zeros((0, 0)), (0.0, 0.0, 1.0, 1.0)) if ref_map is None else ref_map
     out = _plane_moment.build(
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],
         g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], np.asarray(ref, dtype=np.float64),
         g["s_lo"], g["s_hi"], float(delta), max_states, _build_parts(box), _FIRST_SLOT,
-        allowed,
+        allowed, np.ascontiguousarray(cells_map, dtype=np.float64),
+        tuple(float(v) for v in map_grid),
     )
     (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
      start_abs, start_snext, frontier) = out
@@ -237,7 +249,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None):
     return MomentChain(row_ptr, cols, t0, t1, r0, r1, pos, sref, snext,
                        b_sum, start_cols, start_vals, start_abs, float(start_snext),
                        (g["h1"], g["h2"]), moving, float(delta), frontier,
-                       (float(g["sd_exact"][0]), float(g["sd_exact"][1])), narrow)
+                       (float(g["sd_exact"][0]), float(g["sd_exact"][1])),
+                       (g["o1"], g["o2"]), (g["n1"], g["n2"]), narrow)
 
 
 def tail_track(max_steps, n_states):
@@ -361,7 +374,7 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
                            _KRYLOV_DIMS[min(tries, len(_KRYLOV_DIMS) - 1)])
         if tail is not None:
             mass, occupation, lost, (err_p, err_rt), dim = tail
-            occ[:, 0] += occupation
+            occ[:, :2] += occupation
             escaped += lost
             errors[:2] = (dropped + err_p, err_rt)
             steps, tail_start = pause + dim, pause
@@ -407,6 +420,30 @@ def near_occupied(chain, occ):
     return points, reach
 
 
+def mean_sums(chain, occ):
+    """``ref_map`` (:func:`build_moment_chain`) of the closure's plane probe: the mean sum
+    of the walks in each cell of ``chain`` over the steps (``occ[:, 1] / occ[:, 0]``) where
+    the cell held at least ``_MAP_OCCUPATION`` of the summed occupation, NaN elsewhere,
+    and the grid ``(o1, o2, h1, h2)``; None when the sum does not move. A plane through
+    the mean sums leaves the walks' sums several units away from their reference where
+    the sum depends on the path (seed 1313 model 5 of the benchmark's draws: 1.8 in rms,
+    and the probability of an option chosen 2 % of the time 0.0015 low); each cell's own
+    mean sum brings them within 0.3, and the change that makes to the answer is the
+    probe's term (``docs/threshold_exact.md``, section 4)."""
+    if not chain.moving:
+        return None
+    held = occ[:, 0]
+    total = float(held[held > 0.0].sum())
+    good = held > _MAP_OCCUPATION * total
+    n1, n2 = chain.box
+    grid = np.full((n1, n2), np.nan)
+    a = np.floor((chain.pos[good, 0] - chain.origin[0]) / chain.h[0] + 0.5).astype(np.int64)
+    b = np.floor((chain.pos[good, 1] - chain.origin[1]) / chain.h[1] + 0.5).astype(np.int64)
+    inside = (a >= 0) & (a < n1) & (b >= 0) & (b < n2)
+    grid[a[inside], b[inside]] = occ[good, 1][inside] / held[good][inside]
+    return grid, (chain.origin[0], chain.origin[1], chain.h[0], chain.h[1])
+
+
 def reference_sums(chain, occ):
     """Reference-sum map ``(r0, r1, r2)`` and spread ``delta`` for the next pass.
 
@@ -429,7 +466,10 @@ def reference_sums(chain, occ):
 
 
 def solve_moments(chain, tol, max_iter, krylov):
-    """Long-run probabilities and weighted times of the moment chain (linear solves)."""
+    """Long-run probabilities and weighted times of the moment chain (linear solves):
+    ``(probabilities, weighted, n_iter, converged, clipped, occupation)``; ``occupation``
+    (n_states, 2) holds ``x`` and ``m`` summed over every step, as
+    :func:`propagate_moments`'s first two columns (the first solve's answer)."""
     n = chain.n_states
     T0 = sp.csr_matrix((chain.t0, chain.cols, chain.row_ptr), shape=(n, n))
     T1 = sp.csr_matrix((chain.t1, chain.cols, chain.row_ptr), shape=(n, n))
@@ -462,4 +502,4 @@ def solve_moments(chain, tol, max_iter, krylov):
     if clipped > 0.0 and probs.sum() > 0.0:
         scale = 1.0 / max(float(probs.sum()), 1.0)
         probs, weighted = probs * scale, weighted * scale
-    return probs, weighted, it1 + it2, ok1 and ok2, clipped
+    return probs, weighted, it1 + it2, ok1 and ok2, clipped, np.c_[y[:n], y[n:]]

@@ -127,15 +127,18 @@ class _Arnoldi:
         return float(self.H[dim, dim - 1] * np.sum(np.abs(self.V[dim])))
 
     def occupation(self, coef, n_rows):
-        """``x`` summed over the first ``n_rows`` steps, with entries within the rounding of
-        the basis (Gram-Schmidt spreads it over every state the basis reaches) set to zero."""
+        """``x`` and ``m`` summed over the first ``n_rows`` steps, ``(n, 2)``, with the states
+        whose ``x`` is within the rounding of the basis (Gram-Schmidt spreads it over every
+        state the basis reaches) set to zero."""
         n = self.n
         d = coef.shape[1]
         summed = coef[:n_rows].sum(axis=0)
         basis_x = self.V[:d, :n]
-        occ = summed @ basis_x
+        occ = np.empty((n, 2))
+        occ[:, 0] = summed @ basis_x
+        occ[:, 1] = (summed @ self.V[:d, n:]) * self.scale
         noise = 64.0 * np.finfo(float).eps * (np.abs(summed) @ np.abs(basis_x))
-        occ[occ <= noise] = 0.0
+        occ[occ[:, 0] <= noise] = 0.0
         return occ
 
 

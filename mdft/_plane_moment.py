@@ -403,11 +403,15 @@ def mark_near(allowed, pts, o1, o2, h1, h2, r1, r2):
 @njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
           h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states,
-          n_parts, first_slot, allowed):
+          n_parts, first_slot, allowed, ref_map, map_grid):
     """Discover the reachable cells from the exact start and build the moment chain.
 
     ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
-    ``r0 + r1 z1 + r2 z2``, clipped to ``[s_lo, s_hi]``. The states are
+    ``r0 + r1 z1 + r2 z2``, clipped to ``[s_lo, s_hi]``, unless ``ref_map`` (the walks'
+    mean sums per cell of a pass, NaN where it has none; empty: none) holds a value for
+    the cell of that pass's grid around the cell's centre: ``map_grid = (o1, o2, h1, h2)``
+    is that grid's origin and cell size (the closure's plane probe gives the grid's own).
+    The states are
     discovered breadth first; the sources waiting to be evaluated (up to
     :data:`_BLOCK_SOURCES` at a time) are evaluated in ``n_parts`` parts on
     numba's threads and then added in order, so the chain is the same for any
@@ -568,13 +572,24 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                         break
                     c1 = o1 + a * h1
                     c2 = o2 + b * h2
-                    sr = min(max(ref[0] + ref[1] * c1 + ref[2] * c2, s_lo), s_hi)
+                    mapped = False
+                    if ref_map.size > 0:
+                        ac = int(math.floor((c1 - map_grid[0]) / map_grid[2] + 0.5))
+                        bc = int(math.floor((c2 - map_grid[1]) / map_grid[3] + 0.5))
+                        if (0 <= ac < ref_map.shape[0] and 0 <= bc < ref_map.shape[1]
+                                and not math.isnan(ref_map[ac, bc])):
+                            mapped = True
+                            sr = min(max(ref_map[ac, bc], s_lo), s_hi)
+                    if not mapped:
+                        sr = min(max(ref[0] + ref[1] * c1 + ref[2] * c2, s_lo), s_hi)
                     g1, g2 = _place(c1, c2, h1, h2, E, theta - sr / 3.0, c1, c2)
                     pos[n_states, 0] = g1
                     pos[n_states, 1] = g2
                     centre[n_states, 0] = c1
                     centre[n_states, 1] = c2
-                    sref[n_states] = min(max(ref[0] + ref[1] * g1 + ref[2] * g2, s_lo), s_hi)
+                    if not mapped:
+                        sr = min(max(ref[0] + ref[1] * g1 + ref[2] * g2, s_lo), s_hi)
+                    sref[n_states] = sr
                     t = n_states
                     index[a, b] = t
                     n_states += 1
@@ -727,9 +742,9 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     within a state, which enters ``m`` through its covariance with the slope
     ``T1`` (``docs/threshold_exact.md``, section 2). With ``second``, so is
     ``q`` (second moment), which only estimates the spread of the sum (the next pass's ``delta``) and is
-    carried by ``T0`` alone, which keeps it stable, and ``occ[:, k]``
-    accumulates the occupation of ``x``, ``m`` and ``q`` over the steps (for
-    the next pass's reference sums and spread). ``snext[r]`` is the next sum
+    carried by ``T0`` alone, which keeps it stable, and ``occ[:, 2]``
+    accumulates the occupation of ``q`` over the steps (for the next pass's
+    spread). ``snext[r]`` is the next sum
     from state ``r`` at its reference sum and ``b_sum`` its slope in the
     current sum. Stops once the undecided mass (of ``|x|``) is below ``tol``, or, with
     ``budget_p > 0``, once the tail may be filled geometrically with a change
@@ -737,8 +752,10 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
     the change is left in ``errors``). Mass that reaches a ``frontier`` state (no row:
     :func:`build`) leaves the chain; its sum is left in ``errors[2]``, and once it exceeds
     ``escape_max`` the run stops after that step (the pass is to be built again with every
-    row, so the rest of its steps would be wasted). ``occ[:, 0]``
-    accumulates ``x`` over the steps (where the next, finer pass needs rows). With
+    row, so the rest of its steps would be wasted). ``occ[:, 0]`` and ``occ[:, 1]``
+    accumulate ``x`` and ``m`` over the steps (where the next, finer pass needs rows, and
+    the walks' mean sums for the closure's plane probe: :func:`mdft._plane_chain.mean_sums`).
+    With
     ``pause < rt_pmf.shape[0]``, returns after row ``pause - 1`` with ``x`` and ``m`` the
     distribution after ``pause`` steps (no tail filled), unless it stopped before; a
     later call with ``t_first = pause`` goes on from there. ``hazard`` (per row),
@@ -838,8 +855,8 @@ def propagate(row_ptr, cols, t0, t1, ab0, ab1, sref, snext, b_sum, dvar, x, m, q
                 rt_pmf[t, i] += ab0[r, i] * xr + ab1[r, i] * u
             q0 = 0.0
             occ[r, 0] += xr
+            occ[r, 1] += mr
             if second:
-                occ[r, 1] += mr
                 occ[r, 2] += q[r]
                 v = q[r] - 2.0 * sr * mr + sr * sr * xr
                 q0 = sn * sn * xr + 2.0 * sn * b_sum * u + bb * v

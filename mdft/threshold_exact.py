@@ -32,9 +32,9 @@ from ._lattice_chain import build_chain
 from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
 from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
-from ._plane_chain import (TooManyStates, build_moment_chain, narrow_axes, near_occupied,
-                           pilot_pass, plane_geometry, propagate_moments, reference_sums,
-                           solve_moments)
+from ._plane_chain import (TooManyStates, build_moment_chain, mean_sums, narrow_axes,
+                           near_occupied, pilot_pass, plane_geometry, propagate_moments,
+                           reference_sums, solve_moments)
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
 
@@ -369,8 +369,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     state's transition linearised around a reference sum fitted by a pilot
     pass (exact to first order in the deviation; the spread of ``s`` within a
     state enters through a two-point average, each point placing a cut cell's
-    mass where the region lies at its sum, and the change that a spread
-    smaller by ``sqrt(2)`` makes is added to the error estimate). From a state,
+    mass where the region lies at its sum; the larger of the changes that a
+    spread smaller by ``sqrt(2)`` and each cell's reference sum set to the
+    walks' own mean sum make is added to the error estimate). From a state,
     the step given the attended attribute ``j`` is Gaussian with mean
     ``S P + C M e_j``; the probability that it ends with option ``i``
     chosen is a normal (two options) or bivariate normal (three) tail; the
@@ -494,18 +495,21 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         # the change that each pass's extrapolated tail may make (three options)
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
-        spread_p, spread_rt = closure["error"]
+        # the closure's error: the larger of its two probes (the spread of the sum, and the
+        # plane of reference sums against the walks' own mean sums)
+        spread_p, spread_rt = np.maximum(closure["error"], closure.get("plane", (0.0, 0.0)))
         # with the reference term where the reference sums were refitted (a cut pilot)
         spread_p += closure.get("reference", (0.0, 0.0))[0]
         spread_rt += closure.get("reference", (0.0, 0.0))[1]
         # and with the negative choices this pass clipped (the closure's error made visible)
         spread_p += closure.get("clipped", 0.0)
         gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
-                                                 or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
+                                       or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
         if gross and (spread_p > atol or spread_rt > rt_rtol):
             # known once measured on a grid finer than the coarsest (or far beyond the
             # tolerances there): no finer pass can meet the tolerances
-            what = ("the spread of the summed preference" if "reference" not in closure else
+            what = ("the spread of the summed preference and the plane of its reference sums"
+                    if "reference" not in closure else
                     "the spread of the summed preference and the fit of its reference sums "
                     "(refitted after the pilot pass's closure ran away)")
             if closure.get("clipped", 0.0) > 1e-3 * atol:
@@ -736,12 +740,12 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             # a cut pilot's occupation stops short of where the walks go: every row
             state["near"] = None if cut else near_occupied(chain, occ)
 
-    def run(k, delta):
+    def run(k, delta, ref_map=None):
         if solve["method"] == "propagate":
             steps = solve["max_steps"]
             for near in (state["near"], None):
                 chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                           near)
+                                           near, ref_map)
                 out = propagate_moments(chain, steps, solve["tol"], budget,
                                         floor=_RT_WEIGHT_FLOOR,
                                         krylov_from=state["krylov_from"],
@@ -752,11 +756,13 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
                              "building every row", k, out[6])
             rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
+            state["walks"] = (chain, occ)
             state["near"] = near_occupied(chain, occ)
             # the next pass leaves out the Krylov tries that failed on this one
             state["krylov_from"] = tail_start if tail_start < steps else None
         else:
-            chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states)
+            chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
+                                       ref_map=ref_map)
         closure["narrow"] = chain.narrow
         closure["nonzeros"] = chain.cols.shape[0]
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
@@ -780,8 +786,9 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 tail_start=tail_start if tail_start < steps else None,
                 error_probabilities=tail_err[0] + escaped, error_mean_rt=tail_err[1],
                 **common)
-        probs, weighted, n_iter, ok, clipped = solve_moments(chain, solve["tol"],
-                                                             solve["max_iter"], _krylov)
+        probs, weighted, n_iter, ok, clipped, occ = solve_moments(chain, solve["tol"],
+                                                                  solve["max_iter"], _krylov)
+        state["walks"] = (chain, occ)
         closure["clipped"] = clipped
         if not ok:
             raise ValueError(
@@ -832,14 +839,24 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             result = run(k, state["delta"])
             clipped = closure["clipped"]
             if state["delta"] > 0.0 and (first or not closure["settled"]):
-                # the closure's error: the change that a spread of the sum within the states
-                # smaller by a factor sqrt(2) makes; measured on the coarsest grid, and again
-                # on the next while it exceeds half a tolerance there (a cut cell's place
-                # moves with the sum, more unevenly the coarser the cells)
+                # the closure's error, measured on the coarsest grid, and again on the next
+                # while it exceeds half a tolerance there (a cut cell's place moves with the
+                # sum, more unevenly the coarser the cells): from the plane of reference
+                # sums, the change when every cell's reference sum is instead the mean sum of
+                # this pass's walks in it (the grid's own passes go on from this pass's rows
+                # and tails) ...
+                walks = mean_sums(*state["walks"])
+                plane = (0.0, 0.0)
+                if walks is not None:
+                    kept = (state["near"], state["krylov_from"])
+                    plane = _error_estimate(result, run(k, state["delta"], walks))
+                    state["near"], state["krylov_from"] = kept
+                # ... and from the spread: the change that a spread of the sum within the
+                # states smaller by a factor sqrt(2) makes
                 err = _error_estimate(result, run(k, state["delta"] / _REFINE))
-                closure.update(error=err, settled=not first or (
-                    err[0] <= _RECHECK_SHARE * tolerances[0]
-                    and err[1] <= _RECHECK_SHARE * tolerances[1]))
+                closure.update(error=err, plane=plane, settled=not first or (
+                    max(err[0], plane[0]) <= _RECHECK_SHARE * tolerances[0]
+                    and max(err[1], plane[1]) <= _RECHECK_SHARE * tolerances[1]))
             closure["clipped"] = clipped  # this pass's, not the smaller spread's
             return result
         return compute
