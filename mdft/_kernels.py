@@ -575,80 +575,71 @@ def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
     """
     n = S.shape[0]
     m = CM.shape[1]
-    Sk = np.eye(n)
-    nxt = np.empty((n, n))
-    A = np.empty((n, m))
-    x = P0.copy()
-    x_next = np.empty(n)
+    # B = S^k [C M | C | S P0] at step t = k + 1: the attention columns, the noise
+    # columns and S^t P0; each step multiplies it by S
+    B = np.empty((n, m + n + 1))
+    B[:, :m] = CM
+    B[:, m:m + n] = C
+    for i in range(n):
+        acc = 0.0
+        for l in range(n):
+            acc += S[i, l] * P0[l]
+        B[i, m + n] = acc
+    nxt = np.empty_like(B)
     drift = np.zeros(n)
     hoeffding = np.zeros(n)
     variance = np.zeros(n)
     top = np.zeros(n)
     total = 0.0
     for k in range(max_steps):
-        # step t = k + 1: the terms of S^k join the sums, and S^t P0 = S (S^k P0)
         settled = True
+        step = 0.0
         for i in range(n):
             mean = 0.0
             for j in range(m):
-                acc = 0.0
-                for l in range(n):
-                    acc += Sk[i, l] * CM[l, j]
-                A[i, j] = acc
-                mean += acc * w[j]
+                mean += B[i, j] * w[j]
             lo = math.inf
             hi = -math.inf
-            spread = 0.0
+            attention = 0.0
             for j in range(m):
                 if w[j] > 0.0:
-                    lo = min(lo, A[i, j])
-                    hi = max(hi, A[i, j])
-                    spread += w[j] * (A[i, j] - mean) ** 2
+                    lo = min(lo, B[i, j])
+                    hi = max(hi, B[i, j])
+                    attention += w[j] * (B[i, j] - mean) ** 2
             gauss = 0.0
-            for l in range(n):
-                acc = 0.0
-                for r in range(n):
-                    acc += Sk[i, r] * C[r, l]
-                gauss += acc * acc
+            for l in range(m, m + n):
+                gauss += B[i, l] * B[i, l]
             gauss *= noise_var
-            acc = 0.0
-            for l in range(n):
-                acc += S[i, l] * x[l]
-            x_next[i] = acc
             new_h = hoeffding[i] + 0.25 * (hi - lo) ** 2 + gauss
-            new_v = variance[i] + spread + gauss
+            new_v = variance[i] + attention + gauss
             if (drift[i] + mean != drift[i] or new_h != hoeffding[i]
-                    or new_v != variance[i] or x_next[i] != x[i]):
+                    or new_v != variance[i] or (k > 0 and nxt[i, m + n] != B[i, m + n])):
                 settled = False
             drift[i] += mean
             hoeffding[i] = new_h
             variance[i] = new_v
             top[i] = max(top[i], hi - mean)
-        step = 0.0
-        for i in range(n):
-            x[i] = x_next[i]
-            z = theta - (x[i] + drift[i])
+            z = theta - (B[i, m + n] + drift[i])
             if not (z > 0.0 and math.isfinite(hoeffding[i])):
                 return 1.0
             if hoeffding[i] > 0.0:
                 exponent = z * z / hoeffding[i]
-                spread = variance[i] + top[i] * z / 3.0
-                if spread > 0.0:
-                    exponent = max(exponent, z * z / spread)
+                bernstein = variance[i] + top[i] * z / 3.0
+                if bernstein > 0.0:
+                    exponent = max(exponent, z * z / bernstein)
                 step += math.exp(-0.5 * exponent)
-        if settled:
+        if settled and k > 0:
             # every later step adds the same terms
             return min(1.0, total + step * (max_steps - k))
         total += step
         if total >= 1.0:
             return 1.0
         for i in range(n):
-            for l in range(n):
+            for l in range(m + n + 1):
                 acc = 0.0
                 for r in range(n):
-                    acc += S[i, r] * Sk[r, l]
+                    acc += S[i, r] * B[r, l]
                 nxt[i, l] = acc
-        for i in range(n):
-            for l in range(n):
-                Sk[i, l] = nxt[i, l]
+        # the next step's B; nxt keeps this one (its S^t P0 is compared with the next)
+        B, nxt = nxt, B
     return total

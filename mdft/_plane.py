@@ -161,8 +161,9 @@ def cut_mass(xlo, xhi, ylo, yhi, mx, sx, my, sy, ex, ey, bound):
     (:func:`_breaks`), so that each piece is smooth, and each piece is
     integrated by composite four-point Gauss-Legendre on panels no wider than
     ``sx``, nor than ``sy |ey_i / ex_i|`` for a line ``i`` that cuts the piece's
-    columns (the distance along ``x`` over which it moves their end by ``sy``). A component much narrower than the cell along ``x`` is taken as a
-    point there. :func:`cut_mass_with` is the same with the caller's buffers.
+    columns (the distance along ``x`` over which it moves their end by ``sy``). A
+    component much narrower than the cell along ``x`` is taken as a point there.
+    :func:`cut_mass_with` is the same with the caller's buffers.
     """
     cdf_lo = phi_cdf((ylo - my) / sy) if sy > 0.0 else 0.0
     cdf_hi = phi_cdf((yhi - my) / sy) if sy > 0.0 else 0.0

@@ -204,9 +204,9 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, r
     ``near = (points, (r1, r2))``: only the cells within ``r1`` and ``r2`` (along the grid
     axes) of one of ``points`` (rows ``(z1, z2)``) get rows; the other states reached are
     frontier states (:class:`MomentChain`). None: every state reached gets its row.
-    ``ref_map``: :func:`mean_sums` of a coarser pass, whose cells' mean sums replace the
-    plane ``ref`` as the reference sums of the cells they cover (None: the plane
-    everywhere).
+    ``ref_map``: :func:`mean_sums` of a pass (the closure's plane probe passes this grid's
+    own), whose cells' mean sums replace the plane ``ref`` as the reference sums of the
+    cells they cover (None: the plane everywhere).
 
     Raises TooManyStates when the reachable states exceed ``max_states`` or a
     step lands outside every cell.
@@ -226,7 +226,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, r
         points, (r1, r2) = near
         _plane_moment.mark_near(allowed, np.ascontiguousarray(points, dtype=np.float64),
                                 g["o1"], g["o2"], g["h1"], g["h2"], float(r1), float(r2))
-    cells_map, map_grid = (np.zeros((0, 0)), (0.0, 0.0, 1.0, 1.0)) if ref_map is None else ref_map
+    no_map = (np.zeros((0, 0)), (0.0, 0.0, 1.0, 1.0))
+    cells_map, map_grid = no_map if ref_map is None else ref_map
     out = _plane_moment.build(
         g["z_start"], g["s_start"], g["S"], g["E"], g["CM"], g["w"], g["shrunk"], g["sd_cell"],
         g["exact"], g["sd_exact"], g["theta"], g["o1"], g["o2"], g["h1"], g["h2"], g["n1"],

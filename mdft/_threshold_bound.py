@@ -1,12 +1,12 @@
 """A bound on the probability of deciding at all, for :func:`mdft.threshold_probabilities`.
 
 Where ``theta`` lies far beyond where the preferences go within ``max_steps`` steps,
-every trial ends undecided but for a vanishing share, and the chain (or the
-simulation fallback) spends seconds confirming it. :func:`decision_bound` bounds that
-share from the moments of the linear dynamics alone (:func:`mdft._kernels.reach_bound`:
-the mean path, Hoeffding's bound on the attention switches, the Gaussian noise and a
-union over options and steps), in well under a millisecond for ten thousand steps of
-three options. When the bound is within the tolerances, ``threshold_probabilities``
+every trial ends undecided but for a vanishing share, and the chain (or the simulation
+fallback) spends seconds confirming it. :func:`decision_bound` bounds that share from
+the moments of the linear dynamics alone (:func:`mdft._kernels.reach_bound`: the mean
+path, Hoeffding's and Bernstein's bounds on the attention switches, the Gaussian noise
+and a union over options and steps), in well under a millisecond for ten thousand steps
+of three options. When the bound is within the tolerances, ``threshold_probabilities``
 answers "undecided" with the bound as its error (:func:`undecided_answer`).
 """
 

@@ -495,9 +495,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         # the change that each pass's extrapolated tail may make (three options)
         tails = [tails[-1], (_own_error(result.error_probabilities),
                              _own_error(result.error_mean_rt))]
-        # the closure's error: the larger of its two probes (the spread of the sum, and the
-        # plane of reference sums against the walks' own mean sums)
-        spread_p, spread_rt = np.maximum(closure["error"], closure.get("plane", (0.0, 0.0)))
+        # the closure's error: the larger of its two probes (_plane_runs)
+        spread_p, spread_rt = closure["error"]
         # with the reference term where the reference sums were refitted (a cut pilot)
         spread_p += closure.get("reference", (0.0, 0.0))[0]
         spread_rt += closure.get("reference", (0.0, 0.0))[1]
@@ -853,10 +852,13 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                     state["near"], state["krylov_from"] = kept
                 # ... and from the spread: the change that a spread of the sum within the
                 # states smaller by a factor sqrt(2) makes
-                err = _error_estimate(result, run(k, state["delta"] / _REFINE))
-                closure.update(error=err, plane=plane, settled=not first or (
-                    max(err[0], plane[0]) <= _RECHECK_SHARE * tolerances[0]
-                    and max(err[1], plane[1]) <= _RECHECK_SHARE * tolerances[1]))
+                spread = _error_estimate(result, run(k, state["delta"] / _REFINE))
+                # the larger of the two: both measure the one linearisation around the
+                # reference sums (their sum counted it twice)
+                err = (max(spread[0], plane[0]), max(spread[1], plane[1]))
+                closure.update(error=err, settled=not first or (
+                    err[0] <= _RECHECK_SHARE * tolerances[0]
+                    and err[1] <= _RECHECK_SHARE * tolerances[1]))
             closure["clipped"] = clipped  # this pass's, not the smaller spread's
             return result
         return compute
