@@ -303,14 +303,18 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
 
 def krylov_start(tail_start):
     """The first step at which a finer pass tries the Krylov tail, given where a coarser
-    pass of the same model filled its tail (``tail_start``; None: it filled none): the
-    last point of the tries' schedule (``_KRYLOV_FIRST``, doubled) not after it, so that
-    the finer pass leaves out the tries that failed on the coarser grid. A finer grid's
-    walks settle no earlier (on seed 8383 of the benchmark's draws, the tries that failed
-    took 7 % of the time of all calls, 15-17 % of the slowest)."""
+    pass of the same model filled its tail (``tail_start``; None: it filled none), so that
+    the finer pass leaves out the tries that failed on the coarser grid: a tail filled at a
+    point of the tries' schedule (``_KRYLOV_FIRST``, doubled) is a Krylov tail, and the
+    finer pass tries first there; a tail filled between two points is a geometric one,
+    after the try at the first of them failed, and the finer pass tries first at the
+    second. A finer grid's walks settle no earlier (on seed 8383 of the benchmark's draws,
+    the tries that failed took 7 % of the time of all calls, 15-17 % of the slowest)."""
     first = _KRYLOV_FIRST
     while tail_start is not None and 2 * first <= tail_start:
         first *= 2
+    if tail_start is not None and tail_start > first:
+        first *= 2  # the try at first failed: the tail that followed is geometric
     return first
 
 

@@ -55,6 +55,18 @@ _BINARY_MAX_CELLS = 3_000
 _KAPPA = 1.0
 _REFINE = math.sqrt(2.0)
 _MAX_REFINEMENTS = 4
+# Three options: after the first resolution, a half step (the cells 2**(1/4) smaller, about
+# twice the nonzeros instead of four times) between each refinement and the next: an answer
+# at it is compared with the refinement before it, the change scaled by 1 / (sqrt(2) - 1)
+# (the error falling with the square of the cell size over a ratio of 2**(1/4)). A half step
+# is run only where that may meet the tolerances: after the first comparison (whose factor
+# makes it pessimistic) where its grid term is within _FIRST_HALF_REACH times the room the
+# closure leaves, later where the grid term of the refinement before it, times 1 / sqrt(2)
+# (what second order leaves at the half step), fills at most _HALF_STEP_ROOM of that room.
+_HALF_STEP = 2.0**0.25
+_HALF_STEP_FACTOR = 1.0 / (_HALF_STEP**2 - 1.0)
+_HALF_STEP_ROOM = 0.5
+_FIRST_HALF_REACH = 10.0
 # Three options: the coarsest grid (a cell and a half per standard deviation of a step) is
 # often outside the range where the error falls with the square of the cell size, so the
 # first comparison counts as if the error fell only in proportion to it: the change is
@@ -287,7 +299,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     resolution : float, optional
         Three options only: the first cell size in per-step standard
         deviations (default 1.0; between 0.3 and 2). Refinements divide it by
-        ``sqrt(2)``.
+        ``sqrt(2)``, with a half step (``2**(1/4)``) before each where it may
+        answer (``docs/threshold_exact.md``, section 4).
     method : {"propagate", "solve"}, default "propagate"
         ``"propagate"`` applies the chain step by step and returns the
         response-time distribution; it stops early once the undecided mass is
@@ -482,19 +495,27 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure,
                            (atol, rt_rtol))
     coarse = fine = None
-    tails = [(0.0, 0.0)]
-    refinements = 0
+    # the comparison partner of the next pass: the last pass that was not a half step
+    partner = partner_tail = None
+    partner_index = -1
     grid_errors = []  # each comparison's grid term (probabilities, mean times)
+    try_half = True  # whether the next half step may meet the tolerances
     for index, compute in enumerate(runs):
+        half = getattr(compute, "half", False)
+        if half and (not try_half or compute.narrow):
+            continue
         try:
             result = compute()
         except TooManyStates as exc:
             reason = str(exc)
             break
-        coarse, fine = fine, result
+        coarse, fine = partner, result
         # the change that each pass's extrapolated tail may make (three options)
-        tails = [tails[-1], (_own_error(result.error_probabilities),
-                             _own_error(result.error_mean_rt))]
+        own_tail = (_own_error(result.error_probabilities), _own_error(result.error_mean_rt))
+        tails = [partner_tail or (0.0, 0.0), own_tail]
+        first_pair = partner_index == 0
+        if not half:
+            partner, partner_tail, partner_index = result, own_tail, index
         # the closure's error: the larger of its two probes (_plane_runs)
         spread_p, spread_rt = closure["error"]
         # with the reference term where the reference sums were refitted (a cut pilot)
@@ -521,9 +542,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if coarse is None:
             continue
         err_p, err_rt = _error_estimate(fine, coarse)
-        if fine.engine == "plane" and refinements == 0:
-            # the coarsest grid is not yet in the asymptotic range
-            err_p, err_rt = _FIRST_PAIR_FACTOR * err_p, _FIRST_PAIR_FACTOR * err_rt
+        if fine.engine == "plane" and (first_pair or half):
+            # the coarsest grid is not yet in the asymptotic range; a half step is a quarter
+            # of a doubling away from its partner
+            factor = _HALF_STEP_FACTOR if half else _FIRST_PAIR_FACTOR
+            err_p, err_rt = factor * err_p, factor * err_rt
+        grid_p, grid_rt = err_p, err_rt
         err_p += tails[0][0] + tails[1][0]
         err_rt += tails[0][1] + tails[1][1]
         fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
@@ -533,11 +557,22 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         narrow = closure.get("narrow", False)
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
-        refinements += 1
+        if not half:
+            # second order leaves 1 / sqrt(2) of this grid term at the next half step (with
+            # this pass's tail counted for both): run it where that fills at most half the
+            # room the closure leaves; after the first comparison, whose grid term is mostly
+            # the coarsest grid's own error, where that term is within _FIRST_HALF_REACH
+            # times the room
+            scale = (_FIRST_HALF_REACH, 1.0) if first_pair else (_HALF_STEP_ROOM, _REFINE)
+            try_half = (
+                grid_p / scale[1] + 2.0 * tails[1][0] <= scale[0] * (atol - spread_p)
+                and grid_rt / scale[1] + 2.0 * tails[1][1] <= scale[0] * (rt_rtol - spread_rt))
         if fallback == "simulation" and method == "propagate" and fine.engine == "plane":
             # simulate when that costs less than the next, finer pass (about four times the
-            # nonzeros of this one): a deterministic count, in steps of one nonzero
-            chain_work = _REFINE**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
+            # nonzeros of this one, twice for a half step): a deterministic count, in steps of
+            # one nonzero
+            ratio = _HALF_STEP if half or try_half else _REFINE
+            chain_work = ratio**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
             sim_work = _SIM_STEP_WORK * predicted_work(
                 max_steps, fine.probabilities, fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
             if sim_work < chain_work:
@@ -557,10 +592,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if spread_p > 0.0 or spread_rt > 0.0:
             reason += (f", of which the moment closure of the summed preference, which no "
                        f"resolution lowers, accounts for {spread_p:.2g} and {spread_rt:.2g}")
-        if fine.engine == "plane":
+        if fine.engine == "plane" and not half:
             grid_errors.append((err_p, err_rt))
-            # the passes still possible: each finer one has about twice the states
-            left = len(runs) - index - 1
+            # the refinements still possible (half steps aside): each has about twice the
+            # states
+            left = sum(not getattr(run, "half", False) for run in runs[index + 1:])
             left = min(left, int(math.log2(max_states / max(fine.n_states, 1))))
             hopeless = _out_of_reach(grid_errors, (spread_p, spread_rt), (atol, rt_rtol), left)
             if hopeless:
@@ -705,7 +741,8 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     walks of passes at the first resolution that counts, the last change joining
     the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
     """
-    kappas = [kappa * _REFINE] + [kappa / _REFINE**k for k in range(_MAX_REFINEMENTS + 1)]
+    # the coarsest, the first, then refinements by sqrt(2) with a half step before each
+    kappas = [kappa * _REFINE] + [kappa / _HALF_STEP**j for j in range(2 * _MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
                  near=None, krylov_from=None)
     # the occupied region of each pass limits the rows of the next, finer one ("propagate":
@@ -863,7 +900,14 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             return result
         return compute
 
-    return [make(k, i == 0) for i, k in enumerate(kappas)]
+    runs = [make(k, i == 0) for i, k in enumerate(kappas)]
+    for i, compute in enumerate(runs):
+        compute.half = i >= 2 and i % 2 == 0  # a half step (_HALF_STEP)
+        # a half step whose noise is narrower than its cells could never answer (and is
+        # nobody's partner): left out
+        compute.narrow = compute.half and narrow_axes(
+            plane_geometry(model, theta, kappas[i])).size > 0
+    return runs
 
 
 # ------------------------------------------------------------------ solvers
