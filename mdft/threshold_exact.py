@@ -501,8 +501,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     grid_errors = []  # each comparison's grid term (probabilities, mean times)
     try_half = True  # whether the next half step may meet the tolerances
     for index, compute in enumerate(runs):
-        half = getattr(compute, "half", False)
-        if half and (not try_half or compute.narrow):
+        half = compute.half
+        if half and (not try_half or compute.narrow()):
             continue
         try:
             result = compute()
@@ -596,7 +596,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             grid_errors.append((err_p, err_rt))
             # the refinements still possible (half steps aside): each has about twice the
             # states
-            left = sum(not getattr(run, "half", False) for run in runs[index + 1:])
+            left = sum(not run.half for run in runs[index + 1:])
             left = min(left, int(math.log2(max_states / max(fine.n_states, 1))))
             hopeless = _out_of_reach(grid_errors, (spread_p, spread_rt), (atol, rt_rtol), left)
             if hopeless:
@@ -724,6 +724,7 @@ def _binary_runs(model, theta, n_cells, max_states, solve):
             spec = dict(engine="lattice", n_cells=cells, resolution=spacing / sd)
             return _solve_chain(chain, theta, spacing, spec, **solve)
         spacing = theta / cells
+        compute.half = False  # every lattice pass is a refinement (no half steps)
         return compute
 
     return [make(c) for c in sizes]
@@ -900,13 +901,15 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             return result
         return compute
 
+    def narrow(k):
+        # a half step whose noise is narrower than its cells could never answer (and is
+        # nobody's partner): left out (asked only of a half step about to run)
+        return narrow_axes(plane_geometry(model, theta, k)).size > 0
+
     runs = [make(k, i == 0) for i, k in enumerate(kappas)]
     for i, compute in enumerate(runs):
         compute.half = i >= 2 and i % 2 == 0  # a half step (_HALF_STEP)
-        # a half step whose noise is narrower than its cells could never answer (and is
-        # nobody's partner): left out
-        compute.narrow = compute.half and narrow_axes(
-            plane_geometry(model, theta, kappas[i])).size > 0
+        compute.narrow = partial(narrow, kappas[i])
     return runs
 
 
