@@ -231,9 +231,82 @@ def plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
 
 
 @njit
+def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_threshold, P):
+    """:func:`plain_trial` for two or three options (not recorded), the state in scalars.
+
+    The same draws in the same order and the same arithmetic in the same order, so
+    the same choices and steps to the bit; about twice as fast (the generic loops
+    keep the state in memory and cannot be unrolled). With two options the third
+    coordinate is carried as zero and never drawn for, tested or chosen.
+    """
+    three = P0.shape[0] == 3
+    s00 = S[0, 0]
+    s01 = S[0, 1]
+    s10 = S[1, 0]
+    s11 = S[1, 1]
+    c00 = C[0, 0]
+    c01 = C[0, 1]
+    c10 = C[1, 0]
+    c11 = C[1, 1]
+    s02 = s12 = s20 = s21 = s22 = c02 = c12 = c20 = c21 = c22 = 0.0
+    if three:
+        s02 = S[0, 2]
+        s12 = S[1, 2]
+        s20 = S[2, 0]
+        s21 = S[2, 1]
+        s22 = S[2, 2]
+        c02 = C[0, 2]
+        c12 = C[1, 2]
+        c20 = C[2, 0]
+        c21 = C[2, 1]
+        c22 = C[2, 2]
+    noisy = noise_sd > 0.0
+    p0 = P0[0]
+    p1 = P0[1]
+    p2 = P0[2] if three else 0.0
+    e0 = e1 = e2 = 0.0
+    for t in range(1, n_steps + 1):
+        j = draw_attribute(state, cuts)
+        if noisy:
+            e0 = noise_sd * standard_normal(state)
+            e1 = noise_sd * standard_normal(state)
+            if three:
+                e2 = noise_sd * standard_normal(state)
+        if three:
+            q0 = s00 * p0 + s01 * p1 + s02 * p2 + CM[0, j]
+            q1 = s10 * p0 + s11 * p1 + s12 * p2 + CM[1, j]
+            q2 = s20 * p0 + s21 * p1 + s22 * p2 + CM[2, j]
+            if noisy:
+                q0 = q0 + c00 * e0 + c01 * e1 + c02 * e2
+                q1 = q1 + c10 * e0 + c11 * e1 + c12 * e2
+                q2 = q2 + c20 * e0 + c21 * e1 + c22 * e2
+        else:
+            q0 = s00 * p0 + s01 * p1 + CM[0, j]
+            q1 = s10 * p0 + s11 * p1 + CM[1, j]
+            q2 = 0.0
+            if noisy:
+                q0 = q0 + c00 * e0 + c01 * e1
+                q1 = q1 + c10 * e0 + c11 * e1
+        p0 = q0
+        p1 = q1
+        p2 = q2
+        if use_threshold and (p0 >= theta or p1 >= theta or (three and p2 >= theta)):
+            break
+    else:
+        if use_threshold:
+            return -1, -1
+    P[0] = p0
+    P[1] = p1
+    if three:
+        P[2] = p2
+    return argmax_random_ties(P, state), t
+
+
+@njit
 def plain_chunk(state, first, stop, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
                 use_threshold, choices, steps):
-    """Trials ``first <= k < stop`` with :func:`plain_trial` on one stream.
+    """Trials ``first <= k < stop`` with :func:`plain_trial` on one stream
+    (:func:`small_trial` for two or three options).
 
     Writes ``choices[k - first]`` and ``steps[k - first]``.
     """
@@ -242,9 +315,14 @@ def plain_chunk(state, first, stop, S, CM, C, noise_sd, cuts, P0, n_steps, theta
     P_next = np.empty(n)
     eps = np.empty(n)
     dummy = np.empty((1, n))
+    small = n == 2 or n == 3
     for k in range(first, stop):
-        choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
-                                   use_threshold, P, P_next, eps, dummy, False)
+        if small:
+            choice, step = small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                       use_threshold, P)
+        else:
+            choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                       use_threshold, P, P_next, eps, dummy, False)
         choices[k - first] = choice
         steps[k - first] = step
 

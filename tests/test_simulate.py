@@ -173,6 +173,34 @@ def test_step_by_step_kernel_equals_reference_draw_for_draw():
                                    rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_small_trial_equals_the_generic_kernel_to_the_bit(n_options):
+    # two and three options run a kernel of their own (state in scalars); on random models
+    # across the documented range (with and without noise, threshold and fixed time, P0 off
+    # zero, one to three attributes) it must give the generic kernel's trials exactly, and
+    # leave the stream where the generic kernel leaves it
+    rng = np.random.default_rng(n_options)
+    for draw in range(12):
+        n_attributes = int(rng.integers(1, 4))
+        model = make_model(rng.uniform(0.0, 4.0, (n_options, n_attributes)),
+                           rng.dirichlet(np.ones(n_attributes)),
+                           phi1=float(rng.uniform(0.0, 0.1)), phi2=float(rng.uniform(0.0, 0.1)),
+                           beta=float(rng.uniform(1.0, 15.0)),
+                           sigma2=0.0 if draw % 4 == 3 else float(rng.uniform(0.1, 4.0)),
+                           P0=rng.uniform(-1.0, 1.0, n_options))
+        threshold = draw % 3 != 2
+        theta, n_steps = float(rng.uniform(2.0, 30.0)), int(rng.integers(1, 400))
+        args = (model.S, model.C @ model.M, model.C, math.sqrt(model.sigma2),
+                _attention_cuts(model.w), model.P0, n_steps, theta, threshold)
+        fast, slow = one_state(draw), one_state(draw)
+        P = np.empty(n_options)
+        for _ in range(300):
+            expected = _kernels.plain_trial(slow, *args, P.copy(), P.copy(), P.copy(),
+                                            np.empty((1, n_options)), False)
+            assert _kernels.small_trial(fast, *args, P) == expected
+        np.testing.assert_array_equal(fast, slow)
+
+
 def test_noise_factor_reproduces_the_accumulated_covariance(compromise):
     S, C = compromise.S, compromise.C
     for n_steps in (1, 2, 7, 100):
