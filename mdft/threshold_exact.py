@@ -74,11 +74,11 @@ _FIRST_HALF_REACH = 10.0
 _FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
-# with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 30, building
-# a nonzero about 150, 100-340 from chain to chain); the fallback simulates when that
-# costs less than the next refinement.
+# with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 17 (30 before
+# two and three options stepped in scalars), building a nonzero about 150, 100-590 from
+# chain to chain); the fallback simulates when that costs less than the next refinement.
 _BUILD_WORK = 150.0
-_SIM_STEP_WORK = 30.0
+_SIM_STEP_WORK = 17.0
 # Three options: spread of the summed preference within a state assumed by the pilot pass,
 # and the pilot's step limit (its occupation only fits the reference sums).
 _PILOT_DELTA = 0.5
