@@ -230,6 +230,19 @@ def plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     return argmax_random_ties(P, state), n_steps
 
 
+@njit_inline
+def _corner(A):
+    """The entries of the top-left 2 x 2 block of ``A``, row by row."""
+    return A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+
+
+@njit_inline
+def _third(A):
+    """The entries of ``A``'s third column and row outside that block: ``A[0, 2], A[1, 2],
+    A[2, 0], A[2, 1], A[2, 2]``."""
+    return A[0, 2], A[1, 2], A[2, 0], A[2, 1], A[2, 2]
+
+
 @njit
 def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_threshold, P):
     """:func:`plain_trial` for two or three options (not recorded), the state in scalars.
@@ -240,26 +253,12 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     coordinate is carried as zero and never drawn for, tested or chosen.
     """
     three = P0.shape[0] == 3
-    s00 = S[0, 0]
-    s01 = S[0, 1]
-    s10 = S[1, 0]
-    s11 = S[1, 1]
-    c00 = C[0, 0]
-    c01 = C[0, 1]
-    c10 = C[1, 0]
-    c11 = C[1, 1]
+    s00, s01, s10, s11 = _corner(S)
+    c00, c01, c10, c11 = _corner(C)
     s02 = s12 = s20 = s21 = s22 = c02 = c12 = c20 = c21 = c22 = 0.0
     if three:
-        s02 = S[0, 2]
-        s12 = S[1, 2]
-        s20 = S[2, 0]
-        s21 = S[2, 1]
-        s22 = S[2, 2]
-        c02 = C[0, 2]
-        c12 = C[1, 2]
-        c20 = C[2, 0]
-        c21 = C[2, 1]
-        c22 = C[2, 2]
+        s02, s12, s20, s21, s22 = _third(S)
+        c02, c12, c20, c21, c22 = _third(C)
     noisy = noise_sd > 0.0
     p0 = P0[0]
     p1 = P0[1]
