@@ -248,7 +248,7 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     """:func:`plain_trial` for two or three options (not recorded), the state in scalars.
 
     The same draws in the same order and the same arithmetic in the same order, so
-    the same choices and steps to the bit; about twice as fast (the generic loops
+    the same choices and steps to the bit; about 1.7 times as fast (the generic loops
     keep the state in memory and cannot be unrolled). With two options the third
     coordinate is carried as zero and never drawn for, tested or chosen.
     """
