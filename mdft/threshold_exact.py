@@ -563,10 +563,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             # room the closure leaves; after the first comparison, whose grid term is mostly
             # the coarsest grid's own error, where that term is within _FIRST_HALF_REACH
             # times the room
-            scale = (_FIRST_HALF_REACH, 1.0) if first_pair else (_HALF_STEP_ROOM, _REFINE)
+            room, shrink = ((_FIRST_HALF_REACH, 1.0) if first_pair
+                            else (_HALF_STEP_ROOM, _REFINE))
             try_half = (
-                grid_p / scale[1] + 2.0 * tails[1][0] <= scale[0] * (atol - spread_p)
-                and grid_rt / scale[1] + 2.0 * tails[1][1] <= scale[0] * (rt_rtol - spread_rt))
+                grid_p / shrink + 2.0 * tails[1][0] <= room * (atol - spread_p)
+                and grid_rt / shrink + 2.0 * tails[1][1] <= room * (rt_rtol - spread_rt))
         if fallback == "simulation" and method == "propagate" and fine.engine == "plane":
             # simulate when that costs less than the next, finer pass (about four times the
             # nonzeros of this one, twice for a half step): a deterministic count, in steps of
@@ -742,8 +743,10 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     walks of passes at the first resolution that counts, the last change joining
     the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
     """
-    # the coarsest, the first, then refinements by sqrt(2) with a half step before each
+    # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
+    # odd powers of _HALF_STEP)
     kappas = [kappa * _REFINE] + [kappa / _HALF_STEP**j for j in range(2 * _MAX_REFINEMENTS + 1)]
+    halves = [False] + [j % 2 == 1 for j in range(2 * _MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
                  near=None, krylov_from=None)
     # the occupied region of each pass limits the rows of the next, finer one ("propagate":
@@ -907,9 +910,9 @@ def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         return narrow_axes(plane_geometry(model, theta, k)).size > 0
 
     runs = [make(k, i == 0) for i, k in enumerate(kappas)]
-    for i, compute in enumerate(runs):
-        compute.half = i >= 2 and i % 2 == 0  # a half step (_HALF_STEP)
-        compute.narrow = partial(narrow, kappas[i])
+    for compute, k, half in zip(runs, kappas, halves):
+        compute.half = half
+        compute.narrow = partial(narrow, k)
     return runs
 
 
