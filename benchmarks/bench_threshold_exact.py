@@ -14,6 +14,12 @@ per model and then the median and maximum errors and times.
     python benchmarks/bench_threshold_exact.py --ternary 20 --binary 0 --live --cache /tmp/refs
     python benchmarks/bench_threshold_exact.py --ranges wide --fallback simulation --binary 0
     python benchmarks/bench_threshold_exact.py --ternary 40 --binary 0 --trials 0 --seed 8383
+    python benchmarks/bench_threshold_exact.py --canonical --ternary 0 --binary 0 --max-steps 10000
+
+``--canonical`` adds the three context-effect option sets of ``mdft.effects``
+(similarity, attraction, compromise) at the canonical parameters (``w = (.5, .5)``,
+``phi1 = .022``, ``phi2 = .05``, ``beta = 12``, ``sigma2 = 1``, ``theta = 17.5``), and the
+compromise set at ``theta`` 12 and 60 and at ``sigma2`` 0.1 and 0.05.
 
 ``--live`` adds a second, screened set of three-option models: draws (from
 another seed) whose simulation leaves more than half the trials undecided
@@ -79,6 +85,27 @@ def draw_model(rng, n_options, ranges="standard"):
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
         model = mdft.MDFTModel(M, w, **params)
     return model, theta
+
+
+# (effect, theta, changed parameters) of --canonical
+CANONICAL_CASES = (("compromise", 17.5, {}), ("compromise", 12.0, {}), ("compromise", 60.0, {}),
+                   ("compromise", 17.5, {"sigma2": 0.1}), ("compromise", 17.5, {"sigma2": 0.05}),
+                   ("similarity", 17.5, {}), ("attraction", 17.5, {}))
+
+
+def canonical_models(seed):
+    """The ``--canonical`` cases as ``(model, theta, seed)``, and a label for each."""
+    effects = {e.name: e for e in (mdft.SIMILARITY, mdft.ATTRACTION, mdft.COMPROMISE)}
+    models, labels = [], []
+    for k, (name, theta, changes) in enumerate(CANONICAL_CASES):
+        params = {**dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0), **changes}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+            model = mdft.MDFTModel(effects[name].M, [0.5, 0.5], **params)
+        models.append((model, theta, seed + k))
+        labels.append(f"{k}: {name}, theta={theta:g}"
+                      + "".join(f", {key}={value:g}" for key, value in changes.items()))
+    return models, labels
 
 
 class Reference:
@@ -234,6 +261,9 @@ def main(argv=None):
                         help="directory that stores the simulated references")
     parser.add_argument("--ranges", choices=RANGES, default="standard",
                         help="parameter ranges of the draws (see draw_model)")
+    parser.add_argument("--canonical", action="store_true",
+                        help="also the context-effect sets at the canonical parameters (see "
+                             "the module docstring)")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads of the chain (default: numba's, one per core)")
     args = parser.parse_args(argv)
@@ -254,6 +284,10 @@ def main(argv=None):
     ternary = [(*draw_model(rng, 3, args.ranges), args.seed + k) for k in range(args.ternary)]
     binary = [(*draw_model(rng, 2, args.ranges), args.seed + args.ternary + k)
               for k in range(args.binary)]
+    if args.canonical:
+        models, labels = canonical_models(args.seed)
+        print("\ncanonical sets: " + "; ".join(labels))
+        run_set("3 options, canonical sets", models, 3, args)
     if ternary:
         run_set("3 options, unscreened", ternary, 3, args)
     if args.live:

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import mdft
 from mdft import MDFTModel, _lattice, _plane, _plane_moment
 from mdft._lattice_chain import pair_parameters
 from mdft._plane_chain import build_moment_chain
@@ -232,6 +233,19 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
                 "--max-steps", "500"])
     out = capsys.readouterr().out
     assert "3 options, unscreened: " in out and "2 options: " in out and "time" in out
+    # --canonical: the context-effect sets of mdft.effects at the canonical parameters
+    models, labels = bench.canonical_models(3)
+    assert len(models) == len(labels) == len(bench.CANONICAL_CASES)
+    for (model, theta, seed), (name, want_theta, changes), label in zip(
+            models, bench.CANONICAL_CASES, labels):
+        effect = {"similarity": mdft.SIMILARITY, "attraction": mdft.ATTRACTION,
+                  "compromise": mdft.COMPROMISE}[name]
+        np.testing.assert_array_equal(model.M, np.asarray(effect.M))
+        np.testing.assert_array_equal(model.w, [0.5, 0.5])
+        assert theta == want_theta and name in label
+        assert model.sigma2 == changes.get("sigma2", 1.0)
+        assert (model.phi1, model.phi2, model.beta) == (0.022, 0.05, 12.0)
+    assert len({seed for _, _, seed in models}) == len(models)  # a reference seed each
     rng = np.random.default_rng(0)
     for _ in range(50):
         model, theta = bench.draw_model(rng, 3, "wide")

@@ -550,7 +550,7 @@ def test_krylov_tail_stays_within_its_own_estimate(seed):
 
 
 def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
-    """Seed 2026 model 5's slow next mode (section 6 of docs/threshold_exact.md): the Krylov
+    """Seed 2026 model 5's slow next mode (section 5 of docs/threshold_exact.md): the Krylov
     tail starts at one of the first pauses and takes at most a hundred-odd steps of the
     chain, where the geometric tail alone needed thousands; both stay within their
     estimates."""
