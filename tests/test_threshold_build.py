@@ -206,9 +206,8 @@ def test_propagation_in_parts_does_not_depend_on_the_threads(seed):
     assert runs["one"][0].sum() > 0.5  # the run decides most of the mass
 
 
-def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
-    """``bench_threshold_exact.py --threads`` and ``--ranges`` name the option and what
-    they got; the wide ranges draw within their documented bounds."""
+def _bench():
+    """``benchmarks/bench_threshold_exact.py`` as a module."""
     import importlib.util
     from pathlib import Path
 
@@ -216,6 +215,13 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
     spec = importlib.util.spec_from_file_location("bench_threshold_exact", path)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
+    return bench
+
+
+def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
+    """``bench_threshold_exact.py --threads`` and ``--ranges`` name the option and what
+    they got; the wide ranges draw within their documented bounds."""
+    bench = _bench()
     with pytest.raises(SystemExit):
         bench.main(["--threads", "0", "--ternary", "0", "--binary", "0"])
     assert "--threads must be at least 1, got 0" in capsys.readouterr().err
@@ -233,19 +239,6 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
                 "--max-steps", "500"])
     out = capsys.readouterr().out
     assert "3 options, unscreened: " in out and "2 options: " in out and "time" in out
-    # --canonical: the context-effect sets of mdft.effects at the canonical parameters
-    models, labels = bench.canonical_models(3)
-    assert len(models) == len(labels) == len(bench.CANONICAL_CASES)
-    for (model, theta, seed), (name, want_theta, changes), label in zip(
-            models, bench.CANONICAL_CASES, labels):
-        effect = {"similarity": mdft.SIMILARITY, "attraction": mdft.ATTRACTION,
-                  "compromise": mdft.COMPROMISE}[name]
-        np.testing.assert_array_equal(model.M, np.asarray(effect.M))
-        np.testing.assert_array_equal(model.w, [0.5, 0.5])
-        assert theta == want_theta and name in label
-        assert model.sigma2 == changes.get("sigma2", 1.0)
-        assert (model.phi1, model.phi2, model.beta) == (0.022, 0.05, 12.0)
-    assert len({seed for _, _, seed in models}) == len(models)  # a reference seed each
     rng = np.random.default_rng(0)
     for _ in range(50):
         model, theta = bench.draw_model(rng, 3, "wide")
@@ -370,3 +363,22 @@ def test_a_pass_whose_mass_escapes_its_rows_is_built_again_with_every_row(monkey
     np.testing.assert_array_equal(rebuilt.rt_pmf, full.rt_pmf)
     assert rebuilt.n_states == full.n_states
     assert rebuilt.error_probabilities == full.error_probabilities
+
+
+def test_benchmark_canonical_sets_are_the_context_effects_at_the_canonical_parameters():
+    """``bench_threshold_exact.py --canonical`` runs the option sets of ``mdft.effects``
+    with ``w = (.5, .5)``, ``phi1 = .022``, ``phi2 = .05``, ``beta = 12`` and ``sigma2 = 1``
+    unless a case changes it, each with a reference seed of its own."""
+    bench = _bench()
+    models, labels = bench.canonical_models(3)
+    assert len(models) == len(labels) == len(bench.CANONICAL_CASES)
+    for (model, theta, seed), (name, want_theta, changes), label in zip(
+            models, bench.CANONICAL_CASES, labels):
+        effect = {"similarity": mdft.SIMILARITY, "attraction": mdft.ATTRACTION,
+                  "compromise": mdft.COMPROMISE}[name]
+        np.testing.assert_array_equal(model.M, np.asarray(effect.M))
+        np.testing.assert_array_equal(model.w, [0.5, 0.5])
+        assert theta == want_theta and name in label
+        assert model.sigma2 == changes.get("sigma2", 1.0)
+        assert (model.phi1, model.phi2, model.beta) == (0.022, 0.05, 12.0)
+    assert len({seed for _, _, seed in models}) == len(models)  # a reference seed each
