@@ -88,20 +88,21 @@ def draw_model(rng, n_options, ranges="standard"):
 
 
 # (effect, theta, changed parameters) of --canonical
-CANONICAL_CASES = (("compromise", 17.5, {}), ("compromise", 12.0, {}), ("compromise", 60.0, {}),
-                   ("compromise", 17.5, {"sigma2": 0.1}), ("compromise", 17.5, {"sigma2": 0.05}),
-                   ("similarity", 17.5, {}), ("attraction", 17.5, {}))
+CANONICAL_CASES = (("compromise", None, {}), ("compromise", 12.0, {}), ("compromise", 60.0, {}),
+                   ("compromise", None, {"sigma2": 0.1}), ("compromise", None, {"sigma2": 0.05}),
+                   ("similarity", None, {}), ("attraction", None, {}))
 
 
 def canonical_models(seed):
-    """The ``--canonical`` cases as ``(model, theta, seed)``, and a label for each."""
-    effects = {e.name: e for e in (mdft.SIMILARITY, mdft.ATTRACTION, mdft.COMPROMISE)}
+    """The ``--canonical`` cases as ``(model, theta, seed)``, and a label for each: the
+    scenarios of ``mdft.effects`` with their own parameters, some of them changed, at
+    ``mdft.effects.CANONICAL_THETA`` unless a case gives another threshold."""
     models, labels = [], []
     for k, (name, theta, changes) in enumerate(CANONICAL_CASES):
-        params = {**dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0), **changes}
+        theta = mdft.effects.CANONICAL_THETA if theta is None else theta
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-            model = mdft.MDFTModel(effects[name].M, [0.5, 0.5], **params)
+            model = mdft.effects.SCENARIOS[name].with_parameters(**changes).model()
         models.append((model, theta, seed + k))
         labels.append(f"{k}: {name}, theta={theta:g}"
                       + "".join(f", {key}={value:g}" for key, value in changes.items()))

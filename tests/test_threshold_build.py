@@ -374,11 +374,10 @@ def test_benchmark_canonical_sets_are_the_context_effects_at_the_canonical_param
     assert len(models) == len(labels) == len(bench.CANONICAL_CASES)
     for (model, theta, seed), (name, want_theta, changes), label in zip(
             models, bench.CANONICAL_CASES, labels):
-        effect = {"similarity": mdft.SIMILARITY, "attraction": mdft.ATTRACTION,
-                  "compromise": mdft.COMPROMISE}[name]
+        effect = mdft.effects.SCENARIOS[name]
         np.testing.assert_array_equal(model.M, np.asarray(effect.M))
         np.testing.assert_array_equal(model.w, [0.5, 0.5])
-        assert theta == want_theta and name in label
+        assert theta == (17.5 if want_theta is None else want_theta) and name in label
         assert model.sigma2 == changes.get("sigma2", 1.0)
         assert (model.phi1, model.phi2, model.beta) == (0.022, 0.05, 12.0)
     assert len({seed for _, _, seed in models}) == len(models)  # a reference seed each
