@@ -35,6 +35,13 @@ __all__ = [
 #: Relative tolerance within which Q-values count as tied for Greedy.
 GREEDY_TIE_RTOL = 1e-9
 
+#: ``atol`` of :func:`mdft.threshold_probabilities` for the threshold distribution
+#: conditional on deciding within ``n_steps`` (scaled by the probability of deciding).
+THRESHOLD_ATOL = 1e-3
+
+#: Undecided share above which the conditional distribution is asked again, tighter.
+CONDITIONAL_RERUN = 0.01
+
 #: Most restarts of a threshold deliberation that did not decide within ``n_steps``.
 MAX_RESTARTS = 1000
 
@@ -382,9 +389,10 @@ class MDFTOrchestrator(Orchestrator):
     sampling: for fixed stopping by :func:`mdft.choice_probabilities` (the closed form
     of Roe et al. 2001: exact first two moments of ``P(T)``, normal orthant
     probabilities); ``docs/orchestration.md`` reports its measured accuracy for
-    orchestrator inputs. For threshold stopping by :func:`mdft.threshold_probabilities`
-    (error-controlled chain), for states with at most three feasible actions; with more
-    it raises.
+    orchestrator inputs. For threshold stopping by :func:`mdft.threshold_probabilities`:
+    its error-controlled chain for states with two or three feasible actions, its
+    simulation to the same tolerances (seeded, so repeatable) for more, or where the chain
+    cannot vouch for its answer.
 
     With ``sq`` entries in ``[0, 1]`` the options are close together, so ``S`` is close
     to ``I - phi2 * ones`` and its spectral radius is about 1 (often 1 + 1e-5): over a
@@ -488,7 +496,8 @@ class MDFTOrchestrator(Orchestrator):
 
         Fixed stopping: :func:`mdft.choice_probabilities`; threshold stopping:
         :func:`mdft.threshold_probabilities` conditional on deciding within ``n_steps``
-        (at most three feasible actions). Results are cached per state.
+        (simulated to its tolerances for more than three feasible actions). Results are
+        cached per state.
         """
         s = self._state(state)
         if s not in self._cache:
@@ -508,14 +517,21 @@ class MDFTOrchestrator(Orchestrator):
             except ValueError as exc:
                 raise ValueError(f"state {s}: {exc}") from exc
         else:
-            if actions.size > 3:
-                raise ValueError(
-                    f"action_probabilities with threshold stopping handles states with at most 3 "
-                    f"feasible actions (state {s} has {actions.size}); mdft.threshold_probabilities "
-                    "has no chain beyond that (only a slow simulation). Estimate the "
-                    "distribution from decide_many([state] * n) instead"
-                )
-            res = mdft.threshold_probabilities(model, self.threshold, max_steps=self.n_steps)
+            p = self._threshold_probabilities(s, model)
+        out[actions] = p
+        return out
+
+    def _threshold_probabilities(self, s, model):
+        # Conditional on deciding: dividing by the probability d of deciding divides the
+        # error too, so where d < 1 - CONDITIONAL_RERUN the answer is asked again with the
+        # tolerance scaled by d (one more call; the chain or its simulation may refuse).
+        atol = THRESHOLD_ATOL
+        for _ in range(2):
+            try:
+                res = mdft.threshold_probabilities(model, self.threshold, max_steps=self.n_steps,
+                                                   atol=atol)
+            except ValueError as exc:
+                raise ValueError(f"state {s}: {exc}") from exc
             decided = 1.0 - res.p_undecided
             if decided < 1e-9:
                 raise ValueError(
@@ -523,9 +539,10 @@ class MDFTOrchestrator(Orchestrator):
                     f"within n_steps={self.n_steps} steps (probability {decided:.3g}); raise "
                     "n_steps or lower the threshold"
                 )
-            p = np.asarray(res.probabilities) / res.probabilities.sum()
-        out[actions] = p
-        return out
+            if decided >= 1.0 - CONDITIONAL_RERUN or atol < THRESHOLD_ATOL:
+                break
+            atol = THRESHOLD_ATOL * decided
+        return np.asarray(res.probabilities) / res.probabilities.sum()
 
     def _decide(self, states, generator):
         out = np.empty(states.size, dtype=np.int64)

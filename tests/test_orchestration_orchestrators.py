@@ -192,14 +192,58 @@ def test_mdft_threshold_stopping():
     se = np.sqrt(exact * (1 - exact) / n)
     # the lattice method's own error is about 2e-3 for three options (docs/threshold_exact.md)
     assert np.all(np.abs(freq - exact) <= 4.5 * se + 3e-3), (freq, exact)
-    eight = ActionPreferences(q_nominal=np.zeros((1, 8)), q_constrained=np.zeros((1, 8)),
-                              sq_nominal=np.full((1, 8), 1 / 8), sq_constrained=np.full((1, 8), 1 / 8),
-                              feasible=np.ones((1, 8), bool))
-    with pytest.raises(ValueError, match="at most 3 feasible actions"):
-        MDFTOrchestrator.from_preferences(eight, (0.5, 0.5), threshold=3.0).action_probabilities(0)
     hopeless = MDFTOrchestrator.from_preferences(p, (0.5, 0.5), threshold=1e6, n_steps=5)
     with pytest.raises(RuntimeError, match="did not reach threshold=1e\\+06 within n_steps=5"):
         hopeless.act(0, rng=0)
+
+
+def test_mdft_threshold_stopping_with_more_than_three_actions_is_simulated_to_the_tolerances():
+    # no chain beyond three options: mdft.threshold_probabilities simulates (seeded), and
+    # the orchestrator's own deliberations (another stream) agree with it
+    rng = np.random.default_rng(3)
+    sq_n, sq_c = rng.dirichlet(np.ones(6), size=1), rng.dirichlet(np.ones(6), size=1)
+    six = ActionPreferences(q_nominal=np.log(sq_n), q_constrained=np.log(sq_c),
+                            sq_nominal=sq_n, sq_constrained=sq_c, feasible=np.ones((1, 6), bool))
+    orch = MDFTOrchestrator.from_preferences(six, (0.4, 0.6), threshold=2.0, n_steps=500)
+    exact = orch.action_probabilities(0)
+    assert exact.shape == (6,) and abs(exact.sum() - 1.0) < 1e-12
+    np.testing.assert_array_equal(exact, MDFTOrchestrator.from_preferences(
+        six, (0.4, 0.6), threshold=2.0, n_steps=500).action_probabilities(0))   # repeatable
+    n = 50_000
+    freq = np.bincount(orch.decide_many(np.zeros(n, int), rng=5), minlength=6) / n
+    se = np.sqrt(exact * (1 - exact) / n)
+    assert np.all(np.abs(freq - exact) <= 4 * se + 1e-3), (freq, exact)
+
+
+def test_mdft_threshold_stopping_asks_again_when_many_deliberations_do_not_decide(monkeypatch):
+    # conditional on deciding within n_steps: the error is divided by the probability d of
+    # deciding, so below d = 0.99 the chain is asked again with atol scaled by d
+    sq_n, sq_c = np.array([0.2, 0.3, 0.5]), np.array([0.6, 0.3, 0.1])
+    p = ActionPreferences(q_nominal=np.log(sq_n)[None], q_constrained=np.log(sq_c)[None],
+                          sq_nominal=sq_n[None], sq_constrained=sq_c[None],
+                          feasible=np.ones((1, 3), bool))
+    calls = []
+    real = mdft.threshold_probabilities
+
+    def spy(model, theta, **kwargs):
+        res = real(model, theta, **kwargs)
+        calls.append((kwargs["atol"], 1.0 - res.p_undecided))
+        return res
+
+    monkeypatch.setattr(mdft, "threshold_probabilities", spy)
+    orch = MDFTOrchestrator.from_preferences(p, (0.5, 0.5), threshold=3.0, n_steps=8)
+    exact = orch.action_probabilities(0)
+    assert len(calls) == 2 and calls[0][0] == 1e-3
+    decided = calls[0][1]
+    assert 0.5 < decided < 0.99 and calls[1][0] == pytest.approx(1e-3 * decided)
+    n = 50_000
+    freq = np.bincount(orch.decide_many(np.zeros(n, int), rng=4), minlength=3) / n
+    se = np.sqrt(exact * (1 - exact) / n)
+    assert np.all(np.abs(freq - exact) <= 4 * se + 1e-3), (freq, exact)
+    calls.clear()
+    MDFTOrchestrator.from_preferences(p, (0.5, 0.5), threshold=3.0,
+                                      n_steps=2000).action_probabilities(0)
+    assert len(calls) == 1    # nearly every deliberation decides: one call
 
 
 # ------------------------------------------------------------------ validation
