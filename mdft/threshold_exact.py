@@ -19,24 +19,20 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, replace
 from functools import partial
-from types import SimpleNamespace
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from . import _lattice
 from ._lattice_chain import build_chain
+from ._plane_chain import TooManyStates
+from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
-from ._threshold_fallback import (RT_WEIGHT_FLOOR, predicted_work, refuse_if_far_over_budget,
+from ._threshold_fallback import (predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
-from ._plane_chain import (TooManyStates, build_moment_chain, mean_sums, narrow_axes,
-                           near_occupied, pilot_pass, plane_geometry, propagate_moments,
-                           reference_sums, solve_moments)
+from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import as_count, as_scalar
 from .model import MDFTModel
+from .threshold_result import ThresholdProbabilities
 
 __all__ = ["ThresholdProbabilities", "threshold_probabilities"]
 
@@ -45,33 +41,27 @@ logger = logging.getLogger(__name__)
 _MAX_OPTIONS = 3
 _METHODS = ("propagate", "solve")
 _FALLBACKS = ("simulation", "raise")
-_DIRECT_SOLVE_MAX_STATES = 3_000
 # Two options: lattice spacing at most this many per-step standard deviations, at least
 # this many cells per theta.
 _BINARY_SPACING = 0.5
 _BINARY_MIN_CELLS = 40
 _BINARY_MAX_CELLS = 3_000
-# Three options: first resolution (cell size in per-step standard deviations) and refinements.
-_KAPPA = 1.0
-_REFINE = math.sqrt(2.0)
-_MAX_REFINEMENTS = 4
-# Three options: after the first resolution, a half step (the cells 2**(1/4) smaller, about
-# twice the nonzeros instead of four times) between each refinement and the next: an answer
-# at it is compared with the refinement before it, the change scaled by 1 / (sqrt(2) - 1)
-# (the error falling with the square of the cell size over a ratio of 2**(1/4)). A half step
-# is run only where that may meet the tolerances: after the first comparison (whose factor
-# makes it pessimistic) where its grid term is within _FIRST_HALF_REACH times the room the
+# Three options: the grids of the schedule are those of mdft._plane_passes (KAPPA, then
+# refinements by REFINE with a half step of HALF_STEP before each). A half step's answer is
+# compared with the refinement before it, the change scaled by 1 / (sqrt(2) - 1) (the error
+# falling with the square of the cell size over a ratio of 2**(1/4)). A half step is run
+# only where that may meet the tolerances: after the first comparison (whose factor makes
+# it pessimistic) where its grid term is within _FIRST_HALF_REACH times the room the
 # closure leaves, later where the grid term of the refinement before it, times 1 / sqrt(2)
 # (what second order leaves at the half step), fills at most _HALF_STEP_ROOM of that room.
-_HALF_STEP = 2.0**0.25
-_HALF_STEP_FACTOR = 1.0 / (_HALF_STEP**2 - 1.0)
+_HALF_STEP_FACTOR = 1.0 / (HALF_STEP**2 - 1.0)
 _HALF_STEP_ROOM = 0.5
 _FIRST_HALF_REACH = 10.0
 # Three options: the coarsest grid (a cell and a half per standard deviation of a step) is
 # often outside the range where the error falls with the square of the cell size, so the
 # first comparison counts as if the error fell only in proportion to it: the change is
 # scaled by 1 / (sqrt(2) - 1). Later comparisons are taken as they are.
-_FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
+_FIRST_PAIR_FACTOR = 1.0 / (REFINE - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
 # with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 17 (30 before
@@ -79,187 +69,6 @@ _FIRST_PAIR_FACTOR = 1.0 / (_REFINE - 1.0)
 # chain to chain); the fallback simulates when that costs less than the next refinement.
 _BUILD_WORK = 150.0
 _SIM_STEP_WORK = 17.0
-# Three options: spread of the summed preference within a state assumed by the pilot pass,
-# and the pilot's step limit (its occupation only fits the reference sums).
-_PILOT_DELTA = 0.5
-_PILOT_STEPS = 1_000
-_PILOT_PASSES = 2
-# Three options: after a pilot cut short (its closure ran away), the reference sums are fitted
-# again to the walks of a pass at the first resolution that counts, at most _REFITS times,
-# until the answer changes by at most _REFIT_SHARE of the tolerances; the last change is
-# added to the closure's error.
-_REFITS = 4
-_REFIT_SHARE = 0.1
-# Three options: a closure error above this share of a tolerance on the coarsest grid is
-# measured again on the next (and refuses at once there only beyond _FIRST_PAIR_FACTOR times
-# the tolerance).
-_RECHECK_SHARE = 0.5
-# Three options: the geometric tail is filled once the change it may make is within this
-# share of atol and rt_rtol (that change is added to the error estimate).
-_TAIL_SHARE = 0.01
-# Three options, "propagate": a pass whose mass reaching states without rows (left out as
-# never occupied by the coarser pass) exceeds this is built again with every row.
-_ESCAPE_MAX = 1e-10
-# Mean response times of options chosen less often than this weigh in proportionally
-# (the simulation fallback weighs its standard errors the same way).
-_RT_WEIGHT_FLOOR = RT_WEIGHT_FLOOR
-
-
-@dataclass(frozen=True)
-class ThresholdProbabilities:
-    """Choice and response-time distributions of threshold stopping.
-
-    Attributes
-    ----------
-    probabilities : ndarray, shape (n_options,)
-        Probability that option ``i`` is chosen within ``max_steps`` steps
-        (``method="solve"``: ever).
-    p_undecided : float
-        Probability that no option has been chosen after ``max_steps`` steps,
-        so ``probabilities.sum() + p_undecided == 1`` up to rounding
-        (0 for ``method="solve"``, which has no step limit).
-    rt_pmf : ndarray, shape (max_steps, n_options), or None
-        ``rt_pmf[t, i]``: probability of choosing option ``i`` at step
-        ``t + 1``. None for ``method="solve"``.
-    mean_response_times : ndarray, shape (n_options,)
-        Mean decision step given that option ``i`` is chosen (within
-        ``max_steps`` for ``"propagate"``); NaN for an option never chosen,
-        or chosen so rarely (probabilities near the rounding of the chain)
-        that its mean comes out below one step.
-    theta : float
-        The threshold.
-    max_steps : int or None
-        The step limit (None for ``method="solve"``).
-    n_cells : int
-        Cells per ``theta`` along the finest grid axis.
-    spacing : float
-        Finest cell size in preference units.
-    n_levels : int
-        Two options: levels of the summed preference ``1^T P`` that hold
-        states (1 when the feedback keeps the sum at its initial value).
-        Three options: 1 (the chain carries the sum as moments).
-    n_states : int
-        Number of transient states of the chain.
-    method : str
-        ``"propagate"``, ``"solve"``, ``"simulation"`` (the fallback) or
-        ``"bound"`` (no option can be chosen within ``max_steps`` steps but
-        with a probability that the tolerances neglect).
-    n_iter : int
-        Steps propagated, iterations of the linear solver (0 for a direct
-        solve), or trials simulated by the fallback.
-    converged : bool
-        ``"propagate"``: True. ``"solve"``: whether the iterative solver met
-        ``tol``.
-    tail_start : int or None
-        First row of ``rt_pmf`` filled in geometrically (see ``tail_tol``),
-        or None when every step was propagated.
-    engine : str
-        ``"lattice"`` (two options), ``"plane"`` (three options),
-        ``"simulation"`` (the chain refused and ``fallback="simulation"``
-        answered; ``n_states`` is then 0) or ``"bound"`` (every trial ends
-        undecided but for at most ``error_probabilities``; no chain built).
-    resolution : float
-        Two options: the lattice spacing in per-step standard deviations of
-        the preference difference; three options: the cell size in per-step
-        standard deviations along each grid axis (``kappa`` in the docs).
-    error_probabilities : float
-        Estimated error of ``probabilities`` and ``p_undecided``: the largest
-        change against the same computation at a coarser resolution (the
-        simulation fallback: three standard errors; ``"bound"``: the bound on
-        the probability of deciding at all).
-    error_mean_rt : float
-        Estimated relative error of ``mean_response_times``, measured the
-        same way; options chosen with probability ``p < 0.01`` weigh in with
-        ``p / 0.01``.
-    """
-
-    probabilities: np.ndarray
-    p_undecided: float
-    rt_pmf: np.ndarray | None
-    mean_response_times: np.ndarray
-    theta: float
-    max_steps: int | None
-    n_cells: int
-    spacing: float
-    n_levels: int
-    n_states: int
-    method: str
-    n_iter: int
-    converged: bool
-    tail_start: int | None = None
-    engine: str = "lattice"
-    resolution: float = math.nan
-    error_probabilities: float = math.nan
-    error_mean_rt: float = math.nan
-
-    def __repr__(self):
-        p = np.array2string(np.asarray(self.probabilities), precision=4, separator=", ")
-        rt = np.array2string(np.asarray(self.mean_response_times), precision=1, separator=", ")
-        return (f"ThresholdProbabilities(probabilities={p}, p_undecided={self.p_undecided:.3g}, "
-                f"mean_response_times={rt}, theta={self.theta:g}, engine={self.engine!r}, "
-                f"error_probabilities={self.error_probabilities:.2g}, "
-                f"error_mean_rt={self.error_mean_rt:.2g})")
-
-    def summary(self) -> str:
-        """A small text table: each option's probability and mean response time, and the errors.
-
-        Examples
-        --------
-        >>> import mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> print(mdft.threshold_probabilities(model, 10.0).summary())  # doctest: +ELLIPSIS
-        Threshold stopping, theta = 10 (lattice, ... states)
-        option  probability  mean RT (steps)
-             0       0.5000             27.6
-             1       0.5000             27.6
-        undecided   0.0000
-        estimated error: probabilities ..., mean RT ... %
-        """
-        size = {"simulation": f"{self.n_iter} trials",
-                "bound": f"no decision within {self.max_steps} steps"}.get(
-                    self.engine, f"{self.n_states} states")
-        lines = [f"Threshold stopping, theta = {self.theta:g} ({self.engine}, {size})",
-                 f"{'option':>6}  {'probability':>11}  {'mean RT (steps)':>15}"]
-        for i, (p, rt) in enumerate(zip(self.probabilities, self.mean_response_times)):
-            lines.append(f"{i:>6}  {p:>11.4f}  {rt:>15.1f}")
-        lines.append(f"{'undecided':<9} {self.p_undecided:>8.4f}")
-        lines.append(f"estimated error: probabilities {self.error_probabilities:.1e}, "
-                     f"mean RT {100 * self.error_mean_rt:.2f} %")
-        return "\n".join(lines)
-
-    def to_dict(self) -> dict:
-        """The result as JSON-serialisable builtins (``rt_pmf`` as nested lists, NaN as None).
-
-        Examples
-        --------
-        >>> import json, mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> d = mdft.threshold_probabilities(model, 5.0, max_steps=200).to_dict()
-        >>> sorted(d)[:4]
-        ['converged', 'engine', 'error_mean_rt', 'error_probabilities']
-        >>> len(json.dumps(d)) > 0
-        True
-        """
-        def clean(x):
-            if isinstance(x, np.ndarray):
-                return clean(x.tolist())
-            if isinstance(x, list):
-                return [clean(v) for v in x]
-            if isinstance(x, (float, np.floating)):
-                return None if not math.isfinite(float(x)) else float(x)
-            if isinstance(x, (np.integer,)):
-                return int(x)
-            if isinstance(x, np.bool_):
-                return bool(x)
-            return x
-
-        names = ("probabilities", "p_undecided", "rt_pmf", "mean_response_times", "theta",
-                 "max_steps", "n_cells", "spacing", "n_levels", "n_states", "method", "n_iter",
-                 "converged", "tail_start", "engine", "resolution", "error_probabilities",
-                 "error_mean_rt")
-        return {name: clean(getattr(self, name)) for name in names}
 
 
 def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=3e-3,
@@ -486,13 +295,13 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0), settled=True)
-    reason = _narrow_everywhere(model, theta, resolution or _KAPPA) if n == 3 else ""
+    reason = narrow_everywhere(model, theta, resolution or KAPPA) if n == 3 else ""
     if reason:
         runs = []  # no pass can be trusted: refuse (or simulate) before building any chain
     elif n == 2:
         runs = _binary_runs(model, theta, n_cells, max_states, solve)
     else:
-        runs = _plane_runs(model, theta, resolution or _KAPPA, max_states, solve, closure,
+        runs = plane_runs(model, theta, resolution or KAPPA, max_states, solve, closure,
                            (atol, rt_rtol))
     coarse = fine = None
     # the comparison partner of the next pass: the last pass that was not a half step
@@ -511,12 +320,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             break
         coarse, fine = partner, result
         # the change that each pass's extrapolated tail may make (three options)
-        own_tail = (_own_error(result.error_probabilities), _own_error(result.error_mean_rt))
+        own_tail = (own_error(result.error_probabilities), own_error(result.error_mean_rt))
         tails = [partner_tail or (0.0, 0.0), own_tail]
         first_pair = partner_index == 0
         if not half:
             partner, partner_tail, partner_index = result, own_tail, index
-        # the closure's error: the larger of its two probes (_plane_runs)
+        # the closure's error: the larger of its two probes (plane_runs)
         spread_p, spread_rt = closure["error"]
         # with the reference term where the reference sums were refitted (a cut pilot)
         spread_p += closure.get("reference", (0.0, 0.0))[0]
@@ -541,7 +350,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             break
         if coarse is None:
             continue
-        err_p, err_rt = _error_estimate(fine, coarse)
+        err_p, err_rt = error_estimate(fine, coarse)
         if fine.engine == "plane" and (first_pair or half):
             # the coarsest grid is not yet in the asymptotic range; a half step is a quarter
             # of a doubling away from its partner
@@ -550,7 +359,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         grid_p, grid_rt = err_p, err_rt
         err_p += tails[0][0] + tails[1][0]
         err_rt += tails[0][1] + tails[1][1]
-        fine = _with_errors(fine, err_p + spread_p, err_rt + spread_rt)
+        fine = with_errors(fine, err_p + spread_p, err_rt + spread_rt)
         logger.debug("resolution %.3g: estimated error %.2g and %.2g, of which the closure's "
                      "%.2g and %.2g", fine.resolution, err_p + spread_p, err_rt + spread_rt,
                      spread_p, spread_rt)
@@ -564,7 +373,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             # the coarsest grid's own error, where that term is within _FIRST_HALF_REACH
             # times the room
             room, shrink = ((_FIRST_HALF_REACH, 1.0) if first_pair
-                            else (_HALF_STEP_ROOM, _REFINE))
+                            else (_HALF_STEP_ROOM, REFINE))
             try_half = (
                 grid_p / shrink + 2.0 * tails[1][0] <= room * (atol - spread_p)
                 and grid_rt / shrink + 2.0 * tails[1][1] <= room * (rt_rtol - spread_rt))
@@ -572,7 +381,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             # simulate when that costs less than the next, finer pass (about four times the
             # nonzeros of this one, twice for a half step): a deterministic count, in steps of
             # one nonzero
-            ratio = _HALF_STEP if half or try_half else _REFINE
+            ratio = HALF_STEP if half or try_half else REFINE
             chain_work = ratio**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
             sim_work = _SIM_STEP_WORK * predicted_work(
                 max_steps, fine.probabilities, fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
@@ -673,7 +482,6 @@ def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err
     )
 
 
-# ------------------------------------------------------------------ resolutions
 def _step_sd_binary(model):
     """Per-step standard deviation of the lattice coordinate ``(P_1 - P_2) / sqrt(2)``."""
     C = np.asarray(model.C)
@@ -684,27 +492,6 @@ def _step_sd_binary(model):
     mean = float(drift @ w)
     att = float(((drift - mean) ** 2) @ w)
     return math.sqrt(noise + att)
-
-
-def _narrow_everywhere(model, theta, kappa):
-    """Why no three-option pass can be trusted, or "" when the finest one may be.
-
-    A pass is not trusted where the noise is narrower than its cells over ``sqrt(3)``
-    (``MomentChain.narrow``). The cells shrink in proportion to the resolution and the
-    noise does not, so a grid that is narrow at the finest resolution of the schedule is
-    narrow at every one: the chain could only build ever larger chains and refuse.
-    """
-    finest = kappa / _REFINE**_MAX_REFINEMENTS
-    g = plane_geometry(model, theta, finest)
-    narrow = narrow_axes(g)
-    if narrow.size == 0:
-        return ""
-    k = int(narrow[0])
-    cells = (g["h1"], g["h2"])
-    return (f"the noise (per-step sd {float(g['sd_exact'][k]):.3g} along a grid axis) is "
-            f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
-            f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
-            "not trusted")
 
 
 def _binary_runs(model, theta, n_cells, max_states, solve):
@@ -723,306 +510,9 @@ def _binary_runs(model, theta, n_cells, max_states, solve):
             if chain.Q.shape[0] > max_states:
                 raise TooManyStates(f"n_cells={cells} gives {chain.Q.shape[0]} states")
             spec = dict(engine="lattice", n_cells=cells, resolution=spacing / sd)
-            return _solve_chain(chain, theta, spacing, spec, **solve)
+            return solve_chain(chain, theta, spacing, spec, **solve)
         spacing = theta / cells
         compute.half = False  # every lattice pass is a refinement (no half steps)
         return compute
 
     return [make(c) for c in sizes]
-
-
-def _plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
-    """Computations of increasing resolution for three options (the moment chain).
-
-    Before the first, two pilot passes at the coarsest resolution (the first
-    from a constant reference sum and spread ``_PILOT_DELTA``, the second from
-    the first's fit) fit the reference sums and their spread from the
-    occupation; every pass that counts uses that fit, so ``"propagate"`` and
-    ``"solve"`` solve the same chains. A pilot whose closure runs away is cut
-    (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
-    walks of passes at the first resolution that counts, the last change joining
-    the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
-    """
-    # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
-    # odd powers of _HALF_STEP)
-    kappas = [kappa * _REFINE] + [kappa / _HALF_STEP**j for j in range(2 * _MAX_REFINEMENTS + 1)]
-    halves = [False] + [j % 2 == 1 for j in range(2 * _MAX_REFINEMENTS + 1)]
-    state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=_PILOT_DELTA,
-                 near=None, krylov_from=None)
-    # the occupied region of each pass limits the rows of the next, finer one ("propagate":
-    # the solver of the long run has no step limit, so every reachable state may matter)
-    limit = solve["method"] == "propagate"
-
-    # the change the extrapolated tail may make: a share of the tolerances (0: no tail)
-    budget = (0.0, 0.0) if solve["tail_tol"] == 0.0 else tuple(_TAIL_SHARE * t for t in tolerances)
-
-    def fitting_pass(k, steps, tol):
-        # a pass carrying the occupation of the sum's moments, with every row, at the current
-        # reference sums: (chain, answer, cut)
-        chain = build_moment_chain(model, theta, k, state["ref"], state["delta"], max_states)
-        out, cut = pilot_pass(chain, steps, tol, budget, floor=_RT_WEIGHT_FLOOR)
-        return chain, out, cut
-
-    def pilot(k):
-        for _ in range(_PILOT_PASSES):
-            chain, out, cut = fitting_pass(k, _PILOT_STEPS, 1e-6)
-            occ, steps = out[4], out[2]
-            if cut:
-                # the pilot's closure ran away (its reference sums were too far from the
-                # walks' sums): only its steps before are fitted, and the fit is checked
-                # against the walks of the first pass that counts (refit)
-                logger.debug("resolution %.3g: the pilot pass was cut after %d steps", k, steps)
-                state["cut"] = True
-            if steps == 0:
-                break  # nothing to fit: the reference sums and spread stay as they were
-            state["ref"], state["delta"] = reference_sums(chain, occ)
-        if limit:
-            # a cut pilot's occupation stops short of where the walks go: every row
-            state["near"] = None if cut else near_occupied(chain, occ)
-
-    def run(k, delta, ref_map=None):
-        if solve["method"] == "propagate":
-            steps = solve["max_steps"]
-            for near in (state["near"], None):
-                chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                           near, ref_map)
-                out = propagate_moments(chain, steps, solve["tol"], budget,
-                                        floor=_RT_WEIGHT_FLOOR,
-                                        krylov_from=state["krylov_from"],
-                                        escape_max=math.inf if near is None else _ESCAPE_MAX)
-                if near is None or out[6] <= _ESCAPE_MAX:
-                    break
-                # the coarser pass did not foresee where the mass goes: every row after all
-                logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
-                             "building every row", k, out[6])
-            rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
-            state["walks"] = (chain, occ)
-            state["near"] = near_occupied(chain, occ)
-            # the next pass leaves out the Krylov tries that failed on this one
-            state["krylov_from"] = tail_start if tail_start < steps else None
-        else:
-            chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                       ref_map=ref_map)
-        closure["narrow"] = chain.narrow
-        closure["nonzeros"] = chain.cols.shape[0]
-        common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
-                      spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
-                      engine="plane", resolution=float(k))
-        if solve["method"] == "propagate":
-            probs = rt_pmf.sum(axis=0)
-            closure["clipped"] = tail_err[2]
-            if not tail_err[2] <= tolerances[0]:
-                # the first-order closure in the sum can grow without bound where the slopes
-                # T1 are large and the deliberation long; its answer is then no distribution
-                raise TooManyStates(
-                    f"at resolution {k:.3g} the moment closure of the summed preference is "
-                    f"unstable for this model: its choices and undecided mass turn negative "
-                    f"by {tail_err[2]:.2g} in all (atol={tolerances[0]:g})")
-            times = np.arange(1, steps + 1, dtype=np.float64)
-            return ThresholdProbabilities(
-                probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,
-                mean_response_times=_mean_rt(times @ rt_pmf, probs), max_steps=steps,
-                method="propagate", n_iter=n_iter, converged=True,
-                tail_start=tail_start if tail_start < steps else None,
-                error_probabilities=tail_err[0] + escaped, error_mean_rt=tail_err[1],
-                **common)
-        probs, weighted, n_iter, ok, clipped, occ = solve_moments(chain, solve["tol"],
-                                                                  solve["max_iter"], _krylov)
-        state["walks"] = (chain, occ)
-        closure["clipped"] = clipped
-        if not ok:
-            raise ValueError(
-                f"the iterative solver did not reach tol={solve['tol']:g} within "
-                f"max_iter={solve['max_iter']} on {2 * chain.n_states} unknowns; raise "
-                "max_iter or tol, or use method='propagate'")
-        return ThresholdProbabilities(
-            probabilities=probs, p_undecided=0.0, rt_pmf=None,
-            mean_response_times=_mean_rt(weighted, probs), max_steps=None, method="solve",
-            n_iter=n_iter, converged=True, tail_start=None, **common)
-
-    def refit(k):
-        # a pass at resolution k, the reference sums fitted again to its own walks' mean sums,
-        # until the answer changes by less than _REFIT_SHARE of the tolerances; the last
-        # change is the closure's reference term
-        previous = None
-        change = (math.inf, math.inf)
-        times = np.arange(1, solve["max_steps"] + 1, dtype=np.float64)
-        for _ in range(_REFITS):
-            chain, out, cut = fitting_pass(k, solve["max_steps"], solve["tol"])
-            if cut:
-                raise TooManyStates(
-                    f"at resolution {k:.3g} the moment closure of the summed preference is "
-                    "unstable for this model: it runs away even with the reference sums fitted "
-                    "to the walks' own mean sums")
-            probs = out[0].sum(axis=0)
-            answer = SimpleNamespace(probabilities=probs, p_undecided=out[1],
-                                     mean_response_times=_mean_rt(times @ out[0], probs))
-            if previous is not None:
-                change = _error_estimate(answer, previous)
-                logger.debug("resolution %.3g: refitting the reference sums changed the "
-                             "answer by %.2g and %.2g", k, *change)
-                if (change[0] <= _REFIT_SHARE * tolerances[0]
-                        and change[1] <= _REFIT_SHARE * tolerances[1]):
-                    break
-            previous = answer
-            state["ref"] = reference_sums(chain, out[4])[0]
-        closure["reference"] = change
-
-    def make(k, first):
-        def compute():
-            if first:
-                # the pilots fit the reference sums on a grid one step coarser (a quarter of the
-                # nonzeros): the fit is a plane and a spread, which need no finer grid
-                pilot(k * _REFINE)
-                if state.get("cut"):
-                    refit(k)
-            result = run(k, state["delta"])
-            clipped = closure["clipped"]
-            if state["delta"] > 0.0 and (first or not closure["settled"]):
-                # the closure's error, measured on the coarsest grid, and again on the next
-                # while it exceeds half a tolerance there (a cut cell's place moves with the
-                # sum, more unevenly the coarser the cells): from the plane of reference
-                # sums, the change when every cell's reference sum is instead the mean sum of
-                # this pass's walks in it (the grid's own passes go on from this pass's rows
-                # and tails) ...
-                walks = mean_sums(*state["walks"])
-                plane = (0.0, 0.0)
-                if walks is not None:
-                    kept = (state["near"], state["krylov_from"])
-                    plane = _error_estimate(result, run(k, state["delta"], walks))
-                    state["near"], state["krylov_from"] = kept
-                # ... and from the spread: the change that a spread of the sum within the
-                # states smaller by a factor sqrt(2) makes
-                spread = _error_estimate(result, run(k, state["delta"] / _REFINE))
-                # the larger of the two: both measure the one linearisation around the
-                # reference sums (their sum counted it twice)
-                err = (max(spread[0], plane[0]), max(spread[1], plane[1]))
-                closure.update(error=err, settled=not first or (
-                    err[0] <= _RECHECK_SHARE * tolerances[0]
-                    and err[1] <= _RECHECK_SHARE * tolerances[1]))
-            closure["clipped"] = clipped  # this pass's, not the smaller spread's
-            return result
-        return compute
-
-    def narrow(k):
-        # a half step whose noise is narrower than its cells could never answer (and is
-        # nobody's partner): left out (asked only of a half step about to run)
-        return narrow_axes(plane_geometry(model, theta, k)).size > 0
-
-    runs = [make(k, i == 0) for i, k in enumerate(kappas)]
-    for compute, k, half in zip(runs, kappas, halves):
-        compute.half = half
-        compute.narrow = partial(narrow, k)
-    return runs
-
-
-# ------------------------------------------------------------------ solvers
-def _mean_rt(weighted, probs):
-    """Mean decision steps ``weighted / probs``; NaN for an option never chosen, and for one
-    chosen so rarely that its mean comes out below one step (a mean the chain's rounding
-    does not resolve: every decision takes at least one step)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = weighted / np.where(probs > 0, probs, 1.0)
-    return np.where((probs > 0) & (mean >= 1.0), mean, np.nan)
-
-
-def _solve_chain(chain, theta, spacing, spec, *, method, max_steps, tol, tail_tol, max_iter):
-    common = dict(theta=theta, n_cells=int(spec.get("n_cells", math.ceil(theta / spacing))),
-                  spacing=float(spacing), n_levels=chain.n_levels, n_states=chain.Q.shape[0],
-                  engine=spec["engine"], resolution=float(spec["resolution"]))
-    if method == "propagate":
-        return _propagate(chain, max_steps, tol, tail_tol, common)
-    return _solve(chain, tol, max_iter, common)
-
-
-def _propagate(chain, max_steps, tol, tail_tol, common):
-    n = chain.R.shape[1]
-    Q = chain.Q
-    x = np.zeros(Q.shape[0])
-    np.add.at(x, chain.start_cols, chain.start_vals)
-    rt_pmf = np.zeros((max_steps, n))
-    rt_pmf[0] = chain.start_absorbed
-    steps, tail_start, mass = _lattice.propagate(
-        Q.indptr.astype(np.int64), Q.indices.astype(np.int64), Q.data,
-        np.ascontiguousarray(chain.R), x, rt_pmf, tol, tail_tol)
-    probs = rt_pmf.sum(axis=0)
-    times = np.arange(1, max_steps + 1, dtype=np.float64)
-    return ThresholdProbabilities(
-        probabilities=probs, p_undecided=float(max(mass, 0.0)), rt_pmf=rt_pmf,
-        mean_response_times=_mean_rt(times @ rt_pmf, probs), max_steps=max_steps,
-        method="propagate", n_iter=int(steps), converged=True,
-        tail_start=int(tail_start) if tail_start < max_steps else None, **common,
-    )
-
-
-def _krylov(A, rhs, tol, max_iter):
-    """Solve ``A y = rhs`` by BiCGSTAB, then restarted GMRES if that fails; ``(y, ok, iters)``."""
-    counter = [0]
-
-    def callback(*_):
-        counter[0] += 1
-
-    y, info = spla.bicgstab(A, rhs, rtol=tol, atol=0.0, maxiter=max_iter, callback=callback)
-    if info == 0 and np.all(np.isfinite(y)):
-        return y, True, counter[0]
-    restart = min(50, max_iter)
-    y, info = spla.gmres(A, rhs, rtol=tol, atol=0.0, restart=restart,
-                         maxiter=-(-max_iter // restart), callback=callback,
-                         callback_type="pr_norm")
-    return y, info == 0 and bool(np.all(np.isfinite(y))), counter[0]
-
-
-def _solve(chain, tol, max_iter, common):
-    n_states = chain.Q.shape[0]
-    b = np.zeros(n_states)
-    np.add.at(b, chain.start_cols, chain.start_vals)
-    converged = True
-    n_iter = 0
-    if n_states <= _DIRECT_SOLVE_MAX_STATES:
-        lu = spla.splu((sp.identity(n_states, format="csc") - chain.Q.T).tocsc())
-        y = lu.solve(b)
-        y2 = lu.solve(y)
-    else:
-        A = (sp.identity(n_states, format="csr") - chain.Q.T).tocsr()
-        y, ok1, it1 = _krylov(A, b, tol, max_iter)
-        y2, ok2, it2 = _krylov(A, y, tol, max_iter)
-        n_iter = it1 + it2
-        converged = ok1 and ok2
-        if not converged:
-            raise ValueError(
-                f"the iterative solver did not reach tol={tol:g} within max_iter={max_iter} "
-                f"on {n_states} states; raise max_iter or tol, or use method='propagate'"
-            )
-    R = chain.R
-    probs = chain.start_absorbed + R.T @ y
-    weighted = chain.start_absorbed + R.T @ (y + y2)
-    return ThresholdProbabilities(
-        probabilities=probs, p_undecided=0.0, rt_pmf=None,
-        mean_response_times=_mean_rt(weighted, probs), max_steps=None, method="solve",
-        n_iter=n_iter, converged=bool(converged), tail_start=None, **common,
-    )
-
-
-# ------------------------------------------------------------------ error estimate
-def _error_estimate(fine, coarse):
-    """Largest change in the probabilities and weighted relative change in the mean times."""
-    err_p = float(max(np.max(np.abs(fine.probabilities - coarse.probabilities)),
-                      abs(fine.p_undecided - coarse.p_undecided)))
-    err_rt = 0.0
-    for i, p in enumerate(fine.probabilities):
-        a, b = fine.mean_response_times[i], coarse.mean_response_times[i]
-        if p <= 0.0:
-            continue
-        weight = min(1.0, p / _RT_WEIGHT_FLOOR)
-        # a mean time only one side resolves (_mean_rt) counts as wrong by 100 %
-        change = abs(a - b) / a if np.isfinite(a) and np.isfinite(b) else 1.0
-        err_rt = max(err_rt, weight * change)
-    return err_p, float(err_rt)
-
-
-def _own_error(value):
-    return float(value) if math.isfinite(value) else 0.0
-
-
-def _with_errors(result, err_p, err_rt):
-    return replace(result, error_probabilities=err_p, error_mean_rt=err_rt)

@@ -343,16 +343,16 @@ def test_a_run_stops_at_the_step_where_the_escaped_mass_passes_its_limit():
 
 def test_a_pass_whose_mass_escapes_its_rows_is_built_again_with_every_row(monkeypatch, caplog):
     """``threshold_probabilities`` rebuilds a pass with every row when more than
-    ``_ESCAPE_MAX`` of its mass reached states without one: forcing a region that holds only
+    ``ESCAPE_MAX`` of its mass reached states without one: forcing a region that holds only
     the start gives, bit for bit, the answer of a call that builds every row throughout."""
     import mdft
-    from mdft import threshold_exact
+    from mdft import _plane_passes
 
     model, theta = _one_sided_model()
     answers = []
     for near in (lambda chain, occ: None,
                  lambda chain, occ: (chain.pos[:1], (0.1 * chain.h[0], 0.1 * chain.h[1]))):
-        monkeypatch.setattr(threshold_exact, "near_occupied", near)
+        monkeypatch.setattr(_plane_passes, "near_occupied", near)
         caplog.clear()
         with caplog.at_level(logging.DEBUG, logger="mdft.threshold_exact"):
             answers.append(mdft.threshold_probabilities(model, theta, max_steps=1000,

@@ -38,7 +38,7 @@ from hypothesis import strategies as st
 from scipy.special import ndtr
 
 import mdft
-from mdft import MDFTModel, threshold_exact, threshold_probabilities
+from mdft import MDFTModel, _plane_passes, _threshold_solve, threshold_exact, threshold_probabilities
 
 # Siegmund's constant: a Gaussian random walk with step sd s stopped at a
 # barrier a behaves like Brownian motion stopped at a + RHO * s.
@@ -440,7 +440,7 @@ def test_noise_narrower_than_the_cells_at_every_resolution_refuses_without_build
     def no_build(*args, **kwargs):
         raise RuntimeError("a chain was built")
 
-    monkeypatch.setattr(threshold_exact, "build_moment_chain", no_build)
+    monkeypatch.setattr(_plane_passes, "build_moment_chain", no_build)
     for method in ("solve", "propagate"):
         with pytest.raises(ValueError, match=r"narrower than the cells over sqrt\(3\) even at "
                                              r"the finest resolution"):
@@ -509,7 +509,7 @@ def test_geometric_tail_matches_full_propagation():
     assert tail.n_iter < full.n_iter
     # the tail may change the answer by at most its share of the tolerances (which the
     # error estimate then includes)
-    share = threshold_exact._TAIL_SHARE
+    share = _plane_passes.TAIL_SHARE
     np.testing.assert_allclose(tail.probabilities, full.probabilities, atol=share * 0.01)
     np.testing.assert_allclose(tail.mean_response_times, full.mean_response_times,
                                rtol=share * 0.05)
@@ -1072,13 +1072,13 @@ def test_pilot_passes_run_one_step_coarser_than_the_counted_passes(monkeypatch):
     """The pilots (which only fit the reference sums) use the grid of resolution 2; the spread
     pass and every counted pass keep the schedule 1.41, 1, 0.71, ... (docs, section 2)."""
     built = []
-    original = threshold_exact.build_moment_chain
+    original = _plane_passes.build_moment_chain
 
     def recording(model, theta, kappa, *args):
         built.append(kappa)
         return original(model, theta, kappa, *args)
 
-    monkeypatch.setattr(threshold_exact, "build_moment_chain", recording)
+    monkeypatch.setattr(_plane_passes, "build_moment_chain", recording)
     model = MDFTModel([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]], [0.5, 0.5], phi1=0.022, phi2=0.05,
                       beta=12.0)
     res = threshold_probabilities(model, 12.0, max_steps=2_000, fallback="raise")
@@ -1251,7 +1251,7 @@ def test_a_mean_time_below_one_step_is_unresolved_and_its_change_counts_in_full(
     # mean of 0 steps: reported as NaN, not as a time; and the error estimate counts a mean
     # that only one grid resolves as wrong by 100 %, weighed by p / 0.01, instead of dividing
     # by zero (an infinite estimate) or dropping it
-    means = threshold_exact._mean_rt(np.array([0.0, 0.3, 2.0, 0.0]),
+    means = _threshold_solve.mean_rt(np.array([0.0, 0.3, 2.0, 0.0]),
                                      np.array([1e-74, 0.3, 0.5, 0.0]))
     np.testing.assert_array_equal(means, [np.nan, 1.0, 4.0, np.nan])
 
@@ -1261,11 +1261,11 @@ def test_a_mean_time_below_one_step_is_unresolved_and_its_change_counts_in_full(
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        err_p, err_rt = threshold_exact._error_estimate(
+        err_p, err_rt = _threshold_solve.error_estimate(
             answer([1e-74, 0.3, 0.5], [np.nan, 10.0, 20.0]),
             answer([3e-68, 0.3, 0.5], [5e7, 10.02, 20.0]))
         assert err_p == pytest.approx(3e-68, rel=1e-6) and err_rt == pytest.approx(0.002)
         # an option that appears on the finer grid only: its mean time is unchecked
-        _, err_rt = threshold_exact._error_estimate(answer([5e-4, 0.3, 0.5], [30.0, 10.0, 20.0]),
+        _, err_rt = _threshold_solve.error_estimate(answer([5e-4, 0.3, 0.5], [30.0, 10.0, 20.0]),
                                                     answer([0.0, 0.3, 0.5], [np.nan, 10.0, 20.0]))
         assert err_rt == pytest.approx(0.05)

@@ -1,0 +1,260 @@
+"""The three-option passes of :func:`mdft.threshold_probabilities`: the grids of the
+schedule, the pilots that fit the reference sums, the passes that count and the probes of
+the moment closure (``docs/threshold_exact.md``, sections 2 and 4).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from functools import partial
+from types import SimpleNamespace
+
+import numpy as np
+
+from ._plane_chain import (TooManyStates, build_moment_chain, mean_sums, narrow_axes,
+                           near_occupied, pilot_pass, plane_geometry, propagate_moments,
+                           reference_sums, solve_moments)
+from ._threshold_fallback import RT_WEIGHT_FLOOR
+from ._threshold_solve import error_estimate, krylov, mean_rt
+from .threshold_result import ThresholdProbabilities
+
+# the passes report to the log of threshold_probabilities, whose steps they are
+logger = logging.getLogger("mdft.threshold_exact")
+
+# First resolution (cell size in per-step standard deviations) and refinements.
+KAPPA = 1.0
+REFINE = math.sqrt(2.0)
+MAX_REFINEMENTS = 4
+# After the first resolution, a half step (the cells 2**(1/4) smaller, about twice the
+# nonzeros instead of four times) between each refinement and the next; when a half step
+# is run, and how its answer is compared, is decided in mdft.threshold_exact.
+HALF_STEP = 2.0**0.25
+# Spread of the summed preference within a state assumed by the pilot pass, and the
+# pilot's step limit (its occupation only fits the reference sums).
+PILOT_DELTA = 0.5
+PILOT_STEPS = 1_000
+PILOT_PASSES = 2
+# After a pilot cut short (its closure ran away), the reference sums are fitted
+# again to the walks of a pass at the first resolution that counts, at most REFITS times,
+# until the answer changes by at most REFIT_SHARE of the tolerances; the last change is
+# added to the closure's error.
+REFITS = 4
+REFIT_SHARE = 0.1
+# A closure error above this share of a tolerance on the coarsest grid is measured again on
+# the next (and refuses at once there only beyond the first comparison's factor times the
+# tolerance, mdft.threshold_exact).
+RECHECK_SHARE = 0.5
+# The geometric tail is filled once the change it may make is within this
+# share of atol and rt_rtol (that change is added to the error estimate).
+TAIL_SHARE = 0.01
+# "propagate": a pass whose mass reaching states without rows (left out as
+# never occupied by the coarser pass) exceeds this is built again with every row.
+ESCAPE_MAX = 1e-10
+
+
+def narrow_everywhere(model, theta, kappa):
+    """Why no three-option pass can be trusted, or "" when the finest one may be.
+
+    A pass is not trusted where the noise is narrower than its cells over ``sqrt(3)``
+    (``MomentChain.narrow``). The cells shrink in proportion to the resolution and the
+    noise does not, so a grid that is narrow at the finest resolution of the schedule is
+    narrow at every one: the chain could only build ever larger chains and refuse.
+    """
+    finest = kappa / REFINE**MAX_REFINEMENTS
+    g = plane_geometry(model, theta, finest)
+    narrow = narrow_axes(g)
+    if narrow.size == 0:
+        return ""
+    k = int(narrow[0])
+    cells = (g["h1"], g["h2"])
+    return (f"the noise (per-step sd {float(g['sd_exact'][k]):.3g} along a grid axis) is "
+            f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
+            f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
+            "not trusted")
+
+
+def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
+    """Computations of increasing resolution for three options (the moment chain).
+
+    Before the first, two pilot passes at the coarsest resolution (the first
+    from a constant reference sum and spread ``PILOT_DELTA``, the second from
+    the first's fit) fit the reference sums and their spread from the
+    occupation; every pass that counts uses that fit, so ``"propagate"`` and
+    ``"solve"`` solve the same chains. A pilot whose closure runs away is cut
+    (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
+    walks of passes at the first resolution that counts, the last change joining
+    the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
+    """
+    # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
+    # odd powers of HALF_STEP)
+    kappas = [kappa * REFINE] + [kappa / HALF_STEP**j for j in range(2 * MAX_REFINEMENTS + 1)]
+    halves = [False] + [j % 2 == 1 for j in range(2 * MAX_REFINEMENTS + 1)]
+    state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=PILOT_DELTA,
+                 near=None, krylov_from=None)
+    # the occupied region of each pass limits the rows of the next, finer one ("propagate":
+    # the solver of the long run has no step limit, so every reachable state may matter)
+    limit = solve["method"] == "propagate"
+
+    # the change the extrapolated tail may make: a share of the tolerances (0: no tail)
+    budget = (0.0, 0.0) if solve["tail_tol"] == 0.0 else tuple(TAIL_SHARE * t for t in tolerances)
+
+    def fitting_pass(k, steps, tol):
+        # a pass carrying the occupation of the sum's moments, with every row, at the current
+        # reference sums: (chain, answer, cut)
+        chain = build_moment_chain(model, theta, k, state["ref"], state["delta"], max_states)
+        out, cut = pilot_pass(chain, steps, tol, budget, floor=RT_WEIGHT_FLOOR)
+        return chain, out, cut
+
+    def pilot(k):
+        for _ in range(PILOT_PASSES):
+            chain, out, cut = fitting_pass(k, PILOT_STEPS, 1e-6)
+            occ, steps = out[4], out[2]
+            if cut:
+                # the pilot's closure ran away (its reference sums were too far from the
+                # walks' sums): only its steps before are fitted, and the fit is checked
+                # against the walks of the first pass that counts (refit)
+                logger.debug("resolution %.3g: the pilot pass was cut after %d steps", k, steps)
+                state["cut"] = True
+            if steps == 0:
+                break  # nothing to fit: the reference sums and spread stay as they were
+            state["ref"], state["delta"] = reference_sums(chain, occ)
+        if limit:
+            # a cut pilot's occupation stops short of where the walks go: every row
+            state["near"] = None if cut else near_occupied(chain, occ)
+
+    def run(k, delta, ref_map=None):
+        if solve["method"] == "propagate":
+            steps = solve["max_steps"]
+            for near in (state["near"], None):
+                chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
+                                           near, ref_map)
+                out = propagate_moments(chain, steps, solve["tol"], budget,
+                                        floor=RT_WEIGHT_FLOOR,
+                                        krylov_from=state["krylov_from"],
+                                        escape_max=math.inf if near is None else ESCAPE_MAX)
+                if near is None or out[6] <= ESCAPE_MAX:
+                    break
+                # the coarser pass did not foresee where the mass goes: every row after all
+                logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
+                             "building every row", k, out[6])
+            rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
+            state["walks"] = (chain, occ)
+            state["near"] = near_occupied(chain, occ)
+            # the next pass leaves out the Krylov tries that failed on this one
+            state["krylov_from"] = tail_start if tail_start < steps else None
+        else:
+            chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
+                                       ref_map=ref_map)
+        closure["narrow"] = chain.narrow
+        closure["nonzeros"] = chain.cols.shape[0]
+        common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
+                      spacing=float(min(chain.h)), n_levels=1, n_states=chain.n_states,
+                      engine="plane", resolution=float(k))
+        if solve["method"] == "propagate":
+            probs = rt_pmf.sum(axis=0)
+            closure["clipped"] = tail_err[2]
+            if not tail_err[2] <= tolerances[0]:
+                # the first-order closure in the sum can grow without bound where the slopes
+                # T1 are large and the deliberation long; its answer is then no distribution
+                raise TooManyStates(
+                    f"at resolution {k:.3g} the moment closure of the summed preference is "
+                    f"unstable for this model: its choices and undecided mass turn negative "
+                    f"by {tail_err[2]:.2g} in all (atol={tolerances[0]:g})")
+            times = np.arange(1, steps + 1, dtype=np.float64)
+            return ThresholdProbabilities(
+                probabilities=probs, p_undecided=mass, rt_pmf=rt_pmf,
+                mean_response_times=mean_rt(times @ rt_pmf, probs), max_steps=steps,
+                method="propagate", n_iter=n_iter, converged=True,
+                tail_start=tail_start if tail_start < steps else None,
+                error_probabilities=tail_err[0] + escaped, error_mean_rt=tail_err[1],
+                **common)
+        probs, weighted, n_iter, ok, clipped, occ = solve_moments(chain, solve["tol"],
+                                                                  solve["max_iter"], krylov)
+        state["walks"] = (chain, occ)
+        closure["clipped"] = clipped
+        if not ok:
+            raise ValueError(
+                f"the iterative solver did not reach tol={solve['tol']:g} within "
+                f"max_iter={solve['max_iter']} on {2 * chain.n_states} unknowns; raise "
+                "max_iter or tol, or use method='propagate'")
+        return ThresholdProbabilities(
+            probabilities=probs, p_undecided=0.0, rt_pmf=None,
+            mean_response_times=mean_rt(weighted, probs), max_steps=None, method="solve",
+            n_iter=n_iter, converged=True, tail_start=None, **common)
+
+    def refit(k):
+        # a pass at resolution k, the reference sums fitted again to its own walks' mean sums,
+        # until the answer changes by less than REFIT_SHARE of the tolerances; the last
+        # change is the closure's reference term
+        previous = None
+        change = (math.inf, math.inf)
+        times = np.arange(1, solve["max_steps"] + 1, dtype=np.float64)
+        for _ in range(REFITS):
+            chain, out, cut = fitting_pass(k, solve["max_steps"], solve["tol"])
+            if cut:
+                raise TooManyStates(
+                    f"at resolution {k:.3g} the moment closure of the summed preference is "
+                    "unstable for this model: it runs away even with the reference sums fitted "
+                    "to the walks' own mean sums")
+            probs = out[0].sum(axis=0)
+            answer = SimpleNamespace(probabilities=probs, p_undecided=out[1],
+                                     mean_response_times=mean_rt(times @ out[0], probs))
+            if previous is not None:
+                change = error_estimate(answer, previous)
+                logger.debug("resolution %.3g: refitting the reference sums changed the "
+                             "answer by %.2g and %.2g", k, *change)
+                if (change[0] <= REFIT_SHARE * tolerances[0]
+                        and change[1] <= REFIT_SHARE * tolerances[1]):
+                    break
+            previous = answer
+            state["ref"] = reference_sums(chain, out[4])[0]
+        closure["reference"] = change
+
+    def make(k, first):
+        def compute():
+            if first:
+                # the pilots fit the reference sums on a grid one step coarser (a quarter of the
+                # nonzeros): the fit is a plane and a spread, which need no finer grid
+                pilot(k * REFINE)
+                if state.get("cut"):
+                    refit(k)
+            result = run(k, state["delta"])
+            clipped = closure["clipped"]
+            if state["delta"] > 0.0 and (first or not closure["settled"]):
+                # the closure's error, measured on the coarsest grid, and again on the next
+                # while it exceeds half a tolerance there (a cut cell's place moves with the
+                # sum, more unevenly the coarser the cells): from the plane of reference
+                # sums, the change when every cell's reference sum is instead the mean sum of
+                # this pass's walks in it (the grid's own passes go on from this pass's rows
+                # and tails) ...
+                walks = mean_sums(*state["walks"])
+                plane = (0.0, 0.0)
+                if walks is not None:
+                    kept = (state["near"], state["krylov_from"])
+                    plane = error_estimate(result, run(k, state["delta"], walks))
+                    state["near"], state["krylov_from"] = kept
+                # ... and from the spread: the change that a spread of the sum within the
+                # states smaller by a factor sqrt(2) makes
+                spread = error_estimate(result, run(k, state["delta"] / REFINE))
+                # the larger of the two: both measure the one linearisation around the
+                # reference sums (their sum counted it twice)
+                err = (max(spread[0], plane[0]), max(spread[1], plane[1]))
+                closure.update(error=err, settled=not first or (
+                    err[0] <= RECHECK_SHARE * tolerances[0]
+                    and err[1] <= RECHECK_SHARE * tolerances[1]))
+            closure["clipped"] = clipped  # this pass's, not the smaller spread's
+            return result
+        return compute
+
+    def narrow(k):
+        # a half step whose noise is narrower than its cells could never answer (and is
+        # nobody's partner): left out (asked only of a half step about to run)
+        return narrow_axes(plane_geometry(model, theta, k)).size > 0
+
+    runs = [make(k, i == 0) for i, k in enumerate(kappas)]
+    for compute, k, half in zip(runs, kappas, halves):
+        compute.half = half
+        compute.narrow = partial(narrow, k)
+    return runs
+
