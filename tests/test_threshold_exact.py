@@ -39,38 +39,12 @@ from scipy.special import ndtr
 
 import mdft
 from mdft import MDFTModel, _plane_passes, _threshold_solve, threshold_exact, threshold_probabilities
+from threshold_models import (A, B, CANONICAL, SETS, assert_matches_simulation, canonical, drawn,
+                              plain, random_model)
 
 # Siegmund's constant: a Gaussian random walk with step sd s stopped at a
 # barrier a behaves like Brownian motion stopped at a + RHO * s.
 RHO = 0.5825971579390106
-
-A, B = (1.0, 3.0), (3.0, 1.0)
-CANONICAL = dict(phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
-SETS = {
-    "similarity": [A, B, (0.9, 3.1)],
-    "compromise": [A, B, (2.0, 2.0)],
-    "attraction": [A, B, (0.5, 2.5)],
-}
-
-
-def plain(M, w, sigma2=1.0):
-    """A model with ``S = I`` (phi2 = 0), whose spectral radius 1 warns by design."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        return MDFTModel(M, w, phi1=0.0, phi2=0.0, beta=1.0, sigma2=sigma2)
-
-
-def drawn(M, w, **params):
-    """A model of the benchmark's random draws (their feedback may warn)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        return MDFTModel(M, w, **params)
-
-
-def canonical(options, w=(0.5, 0.5)):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        return MDFTModel(options, list(w), **CANONICAL)
 
 
 def nystrom_binary(model, theta, n_grid=1500):
@@ -152,40 +126,7 @@ def test_refining_the_lattice_reduces_the_error():
     assert all(e2 < e1 for e1, e2 in zip(errors, errors[1:]))
 
 
-
-
 # ---------------------------------------------------------------- against Monte Carlo
-def random_model(rng, n_options, theta_range=(5.0, 60.0), sigma2_range=(0.1, 4.0)):
-    """A model drawn across the documented range (benchmarks/bench_threshold_exact.py)."""
-    n_attributes = int(rng.integers(2, 4))
-    M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
-    w = rng.dirichlet(np.full(n_attributes, 4.0))
-    sigma2 = float(np.exp(rng.uniform(*np.log(sigma2_range))))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = MDFTModel(M, w, phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
-                          phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1, 15)),
-                          sigma2=sigma2)
-    return model, float(rng.uniform(*theta_range))
-
-
-def assert_matches_simulation(res, model, theta, n_trials, seed, max_steps=10_000):
-    """Probabilities within 4 standard errors plus the stated error estimate and 0.002;
-    mean response times of options chosen in >= 500 trials within 4 standard errors plus
-    the stated relative error and 0.5 %."""
-    sim = mdft.simulate(model, n_trials, stopping=mdft.Threshold(theta, max_steps=max_steps),
-                        rng=seed)
-    gap = np.abs(res.probabilities - sim.probabilities)
-    allowed = 4 * sim.standard_errors + res.error_probabilities + 0.002
-    assert np.all(gap < allowed), (res.probabilities, sim.probabilities, allowed)
-    se_und = math.sqrt(max(sim.p_undecided * (1 - sim.p_undecided), 1e-12) / n_trials)
-    assert abs(res.p_undecided - sim.p_undecided) < 4 * se_und + res.error_probabilities + 0.002
-    for i in np.flatnonzero(sim.counts >= 500):
-        rt = sim.response_times(i)
-        se = rt.std(ddof=1) / math.sqrt(rt.size)
-        gap = abs(res.mean_response_times[i] - rt.mean())
-        limit = 4 * se + (res.error_mean_rt + 0.005) * rt.mean()
-        assert gap < limit, (i, res.mean_response_times[i], rt.mean(), se)
 
 
 @pytest.mark.parametrize("seed", [12, 13])
@@ -500,373 +441,6 @@ def test_solve_and_propagate_agree_for_three_options():
                                rtol=1e-6)
 
 
-def test_geometric_tail_matches_full_propagation():
-    model = canonical(SETS["similarity"])
-    loose = dict(atol=0.01, rt_rtol=0.05)  # the point is the agreement of the two runs
-    full = threshold_probabilities(model, 8.0, tail_tol=0.0, **loose)
-    tail = threshold_probabilities(model, 8.0, **loose)
-    assert tail.tail_start is not None and full.tail_start is None
-    assert tail.n_iter < full.n_iter
-    # the tail may change the answer by at most its share of the tolerances (which the
-    # error estimate then includes)
-    share = _plane_passes.TAIL_SHARE
-    np.testing.assert_allclose(tail.probabilities, full.probabilities, atol=share * 0.01)
-    np.testing.assert_allclose(tail.mean_response_times, full.mean_response_times,
-                               rtol=share * 0.05)
-
-
-@pytest.mark.parametrize("seed", [41, 42, 43, 44])
-def test_extrapolated_tail_stays_within_its_own_estimate(seed):
-    """On random three-option models (decided and undecided ones alike), filling the tail
-    geometrically changes the answer by no more than the change it reports."""
-    from mdft._plane_chain import build_moment_chain
-
-    rng = np.random.default_rng(seed)
-    model, theta = random_model(rng, 3, theta_range=(5.0, 30.0))
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    chain = build_moment_chain(model, theta, 1.4, ref, 0.5, 60_000)
-    tail_against_full(chain, 1500, krylov=False)
-
-
-@pytest.mark.parametrize("seed", [2, 3, 5, 7])
-def test_krylov_tail_stays_within_its_own_estimate(seed):
-    """Random three-option models across the documented range (sigma2 0.1-4, theta 5-60)
-    on a coarse grid, 6,000 steps: where the Krylov tail was filled, it changed the answer
-    by no more than its estimate."""
-    from mdft._plane_chain import _KRYLOV_FIRST, build_moment_chain, propagate_moments
-
-    rng = np.random.default_rng(seed)
-    budget = (1e-5, 3e-5)
-    used = 0
-    for _ in range(4):
-        model, theta = random_model(rng, 3)
-        ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-        chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
-        if propagate_moments(chain, 6000, 1e-14, budget)[3] < _KRYLOV_FIRST:
-            continue  # decided, or a geometric tail (the test above)
-        full, tail = tail_against_full(chain, 6000, budget=budget)
-        used += tail[3] < 6000
-    assert used >= 1  # each seed's four models include at least one long deliberation
-
-
-def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
-    """Seed 2026 model 5's slow next mode (section 5 of docs/threshold_exact.md): the Krylov
-    tail starts at one of the first pauses and takes at most a hundred-odd steps of the
-    chain, where the geometric tail alone needed thousands; both stay within their
-    estimates."""
-    from mdft._plane_chain import _KRYLOV_FIRST, build_moment_chain
-    from mdft._plane_krylov import _DIMS
-
-    model, theta = slow_mode_model()
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
-    _, krylov = tail_against_full(chain, 10_000, budget=(1e-5, 3e-5))
-    _, geometric = tail_against_full(chain, 10_000, budget=(1e-5, 3e-5), krylov=False)
-    assert krylov[3] in (_KRYLOV_FIRST, 2 * _KRYLOV_FIRST)
-    assert krylov[2] - krylov[3] <= _DIMS[-1]
-    assert geometric[2] > 6 * krylov[2]
-
-
-def test_krylov_start_follows_the_schedule_of_tries():
-    """A finer pass's first Krylov try is where the coarser pass filled a Krylov tail (a
-    point of the schedule: the first, doubled), the point after the try that failed
-    before a geometric tail (filled between two points), and the schedule's first
-    without a tail or with a geometric one before any try."""
-    from mdft._plane_chain import _KRYLOV_FIRST, krylov_start
-
-    first = _KRYLOV_FIRST
-    assert krylov_start(None) == krylov_start(0) == krylov_start(first - 1) == first
-    assert krylov_start(first) == first
-    assert krylov_start(first + 1) == krylov_start(2 * first - 1) == 2 * first
-    assert krylov_start(2 * first) == 2 * first
-    assert krylov_start(8 * first) == 8 * first
-    assert krylov_start(9 * first) == 16 * first
-    # idempotent: a start passed on as krylov_from stays where it is
-    for tail in (None, 0, first + 1, 9 * first):
-        assert krylov_start(krylov_start(tail)) == krylov_start(tail)
-
-
-def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_grid(monkeypatch):
-    """A random long deliberation (seed 3 of the test draws, theta 39.7) whose coarse pass
-    fills its Krylov tail only at the second try: the finer pass that starts there gives
-    the very answer of the finer pass that tries from the first point on (its first try
-    fails as well), without the failed try's work."""
-    from mdft import _plane_chain
-    from mdft._plane_chain import (_KRYLOV_FIRST, build_moment_chain, krylov_start,
-                                   propagate_moments)
-
-    tries = []
-    tail = _plane_chain.krylov_tail
-    monkeypatch.setattr(_plane_chain, "krylov_tail",
-                        lambda *args: tries.append(args[3]) or tail(*args))
-    rng = np.random.default_rng(3)
-    random_model(rng, 3)
-    model, theta = random_model(rng, 3)
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    budget = (1e-5, 3e-5)
-    coarse = propagate_moments(build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000), 6000,
-                               1e-14, budget)
-    assert coarse[3] == 2 * _KRYLOV_FIRST
-    fine = build_moment_chain(model, theta, 1.41, ref, 0.5, 60_000)
-    tries.clear()
-    every_try = propagate_moments(fine, 6000, 1e-14, budget)
-    assert tries == [_KRYLOV_FIRST, 2 * _KRYLOV_FIRST]
-    tries.clear()
-    later = propagate_moments(fine, 6000, 1e-14, budget, krylov_from=krylov_start(coarse[3]))
-    assert tries == [2 * _KRYLOV_FIRST]
-    assert later[3] == every_try[3] == 2 * _KRYLOV_FIRST
-    np.testing.assert_array_equal(later[0], every_try[0])
-    assert later[1] == every_try[1]
-
-
-def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
-    """A random model (seed 777 of the benchmark's draws) whose moment closure lets the
-    probabilities of some states turn negative: their signed sum fell below the stop
-    tolerance while the walks still chose 1.3e-6 more of one option. Stopping on the sum of
-    |x| gives every step's answer."""
-    from mdft._plane_chain import build_moment_chain, propagate_moments, reference_sums
-
-    model = drawn([[2.455354, 3.65308], [1.585164, 1.866527], [0.530718, 2.560094]],
-                  [0.674101, 0.325899], phi1=0.08985654, phi2=0.03238458, beta=2.0401195,
-                  sigma2=0.50501289)
-    theta = 19.778292
-    ref, delta = np.array([float(np.sum(model.P0)), 0.0, 0.0]), 0.5
-    for _ in range(2):  # the reference sums as the library's pilots fit them
-        pilot = build_moment_chain(model, theta, 2.0, ref, delta, 30_000)
-        ref, delta = reference_sums(pilot, propagate_moments(pilot, 1000, 1e-6, second=True)[4])
-    chain = build_moment_chain(model, theta, 1.41, ref, delta, 30_000)
-    every = propagate_moments(chain, 10_000, -np.inf)
-    stopped = propagate_moments(chain, 10_000, 1e-14)
-    assert stopped[2] < 10_000
-    np.testing.assert_allclose(stopped[0].sum(axis=0), every[0].sum(axis=0), rtol=0,
-                               atol=1e-12)
-
-
-def runaway_pilot_model():
-    """Seed 9191 model 14 of the benchmark's draws (a long deliberation, mean times 540-590
-    steps): with the pilot's first guess of the reference sums, its moment closure runs away
-    after about 200 steps."""
-    model = drawn([[2.0356108074080255, 2.253562468264767],
-                   [0.9061297268088968, 2.1682379023887544],
-                   [0.623301638882569, 2.0033458201561873]],
-                  [0.4138242065397861, 0.586175793460214], phi1=0.008507515982439344,
-                  phi2=0.06767721501851882, beta=10.305919742706031, sigma2=0.22853328717998567)
-    return model, 50.78103007752905
-
-
-def pilot_occupation(chain, max_steps, tol, budget):
-    """A pilot pass's ``(occupation, steps, cut)``."""
-    from mdft._plane_chain import pilot_pass
-
-    out, cut = pilot_pass(chain, max_steps, tol, budget)
-    return out[4], out[2], cut
-
-
-def test_a_pilot_whose_closure_runs_away_keeps_the_steps_before(monkeypatch):
-    from mdft import _plane_chain
-    from mdft._plane_chain import build_moment_chain, propagate_moments
-
-    model, theta = runaway_pilot_model()
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 30_000)
-    occ, steps, cut = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
-    assert cut and 100 <= steps < 1000 and steps % _plane_chain._PILOT_CHUNK == 0
-    # the occupation kept is that of a pass of that many steps
-    alone = propagate_moments(chain, steps, 1e-6, (1e-5, 3e-5), second=True)
-    np.testing.assert_allclose(occ, alone[4], rtol=1e-12, atol=1e-300)
-    # unguarded, the pass goes on to the step limit and its answer is no distribution: its
-    # negative choices (clipped, and counted) outweigh the whole
-    monkeypatch.setattr(_plane_chain, "_PILOT_RUNAWAY", np.inf)
-    occ_all, steps_all, cut_all = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
-    assert not cut_all and steps_all == 1000
-    wild = propagate_moments(chain, 1000, 1e-6, (1e-5, 3e-5), second=True)
-    assert wild[5][2] > 1.0
-
-
-def test_negative_choices_are_clipped_scaled_and_counted():
-    from mdft._plane_chain import _clip_negative
-
-    rt_pmf = np.array([[0.5, -0.1, 0.0], [0.45, 0.2, -0.05]])
-    mass, clipped = _clip_negative(rt_pmf, 0.0)
-    assert clipped == pytest.approx(0.15) and mass == 0.0
-    assert rt_pmf.min() == 0.0 and rt_pmf.sum() == pytest.approx(1.0)
-    np.testing.assert_allclose(rt_pmf, np.array([[0.5, 0, 0], [0.45, 0.2, 0]]) / 1.15)
-    untouched = np.array([[0.25, 0.25, 0.0]])
-    assert _clip_negative(untouched, 0.5) == (0.5, 0.0)
-    assert untouched.sum() == 0.5
-
-
-def test_a_closure_whose_choices_turn_negative_answers_a_distribution_and_says_so():
-    # seed 8282 model 14 of the benchmark's draws: option 1 is chosen in every one of 10**6
-    # simulated trials (mean time 46.28 steps), but the linearised choices of the other two
-    # turn negative by 0.0008 in all. Clipped and left out, they made p_1 = 1.0008 with an
-    # estimate of 5e-5; clipped, scaled back and counted, p_1 = 1 and the estimate covers them.
-    # The closure's plane probe (each cell's reference sum the walks' own mean sum) turns
-    # negative by 0.0017, beyond the default atol: refused as unstable there; at atol = 2e-3
-    # its term also covers the mean time's error (0.16 %, the plane's alone said 0.015 %)
-    model = drawn([[1.66396564, 1.14790297, 0.64966856], [3.98162207, 2.97665791, 2.54034374],
-                   [1.72459506, 0.66875495, 1.71616334]], [0.2046643, 0.50472451, 0.29061119],
-                  phi1=0.010131737724362024, phi2=0.03996832951331772, beta=11.772343811026468,
-                  sigma2=0.17304052523857907)
-    with pytest.raises(ValueError, match=r"closure of the summed preference is unstable.*"
-                                         r"turn negative by 0\.0017"):
-        threshold_probabilities(model, 40.354331093471934, fallback="raise")
-    res = threshold_probabilities(model, 40.354331093471934, fallback="raise", atol=2e-3)
-    assert res.probabilities.min() >= 0.0
-    assert res.probabilities.sum() + res.p_undecided == pytest.approx(1.0, abs=1e-12)
-    assert abs(res.probabilities[1] - 1.0) <= 1e-4
-    assert 5e-4 <= res.error_probabilities <= 1e-3
-    assert res.mean_response_times[1] == pytest.approx(46.28, rel=3e-3)
-    assert res.error_mean_rt >= abs(res.mean_response_times[1] / 46.28 - 1.0)
-
-
-def test_a_healthy_pilot_is_not_cut(monkeypatch):
-    # the canonical compromise set: the pilot's closure stays sound, and running it in
-    # chunks gives the occupation of one run
-    from mdft import _plane_chain
-    from mdft._plane_chain import build_moment_chain
-
-    model = MDFTModel(SETS["compromise"], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0,
-                      sigma2=1.0)
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    chain = build_moment_chain(model, 17.5, 2.0, ref, 0.5, 30_000)
-    occ, steps, cut = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
-    assert not cut and steps > 2 * _plane_chain._PILOT_CHUNK
-    monkeypatch.setattr(_plane_chain, "_PILOT_CHUNK", 10_000)
-    occ_one, steps_one, _ = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
-    assert steps_one == steps
-    np.testing.assert_allclose(occ, occ_one, rtol=1e-12, atol=1e-300)
-
-
-def test_a_model_whose_first_pilot_runs_away_is_answered():
-    """Before the guard, the reference sums fitted from the runaway pilot made every pass's
-    closure unstable, and the call simulated (40 s). Reference: 10**6 simulated trials
-    (benchmarks/bench_threshold_exact.py, seed 9191, max_steps 10,000): p = 2.1e-5,
-    0.50616, 0.493819 (standard errors 0.0005) and mean times 582 (21 trials), 538.78,
-    587.04 steps."""
-    model, theta = runaway_pilot_model()
-    res = threshold_probabilities(model, theta, fallback="raise")
-    assert res.engine == "plane"
-    np.testing.assert_allclose(res.probabilities, [2.1e-5, 0.50616, 0.493819], atol=0.002)
-    np.testing.assert_allclose(res.mean_response_times[1:], [538.78, 587.04], rtol=0.005)
-
-
-def test_reference_sums_refitted_after_a_cut_pilot_are_checked():
-    """Seed 5150 model 3 of the benchmark's draws: its pilot's closure runs away within 50
-    steps, and the pilot cut at 150 steps fits reference sums that leave the chain stable but
-    biased (0.0067 and 0.9933, mean time 226 steps for the second option). Refitted to the
-    walks of the first pass that counts, the answer is within the tolerances of
-    5 * 10**6 simulated trials (1 and 4 million with seeds 1 and 7 of mdft.simulate, pooled:
-    p = 0.00826, 0.99174, mean times 143.6 and 217.2 steps)."""
-    model = drawn([[1.8138094066077708, 3.9686312912630735],
-                   [2.579267199608471, 2.9609474427885942],
-                   [0.9511985461332478, 1.3554338688020402]],
-                  [0.5606021609462761, 0.4393978390537239], phi1=0.0076642266530194715,
-                  phi2=0.03956108946247433, beta=2.745171083240042, sigma2=0.18106185763880178)
-    res = threshold_probabilities(model, 31.51853929122604, fallback="raise")
-    np.testing.assert_allclose(res.probabilities, [0.00826, 0.99174, 0.0], atol=0.001)
-    np.testing.assert_allclose(res.mean_response_times[:2], [143.6, 217.2], rtol=0.005)
-
-
-def test_krylov_powers_match_matrix_powers():
-    from mdft._plane_moment import krylov_powers
-
-    rng = np.random.default_rng(0)
-    H = np.triu(rng.normal(size=(6, 6)) * 0.3, -1)
-    out, n = krylov_powers(H, 2.0, 12, 0.0)
-    assert n == 12
-    for k in (0, 1, 5, 11):
-        np.testing.assert_allclose(out[k], 2.0 * np.linalg.matrix_power(H, k)[:, 0],
-                                   rtol=1e-12, atol=1e-15)
-    # rows after the first below the negligible norm are zero
-    out, n = krylov_powers(0.1 * np.eye(3), 1.0, 20, 1e-6)
-    assert n == 8 and np.all(out[8:] == 0.0) and out[7, 0] == pytest.approx(1e-7)
-
-
-def tail_against_full(chain, steps, budget=(5e-5, 1.5e-4), krylov=True):
-    """Propagate ``chain`` for ``steps`` with and without the tail; assert that filling the
-    tail changed the answer by no more than the change it reported (within ``budget``).
-    The full run's own error (the mass of the states it left out as holding less than
-    1e-15 of the undecided mass) counts on its side."""
-    from mdft._plane_chain import propagate_moments
-
-    # every step (no stop at a small undecided mass: where the moment closure lets x change
-    # sign, the mass can pass below it while the walks still choose)
-    full = propagate_moments(chain, steps, -np.inf)
-    tail = propagate_moments(chain, steps, 1e-14, budget, krylov=krylov)
-    times = np.arange(1, steps + 1)
-    if full[5][2] > 1e-3:
-        # an unstable moment closure (docs/threshold_exact.md, section 8): no distribution,
-        # which threshold_probabilities refuses by its negative choices; so it must with the
-        # tail
-        assert tail[5][2] > 1e-3
-        return full, tail
-    err_p, err_rt, _ = tail[5]
-    if tail[3] < steps:  # the tail was filled
-        assert err_p <= budget[0] and err_rt <= budget[1]
-    assert tail[2] <= full[2]
-    p_full, p_tail = full[0].sum(axis=0), tail[0].sum(axis=0)
-    assert np.abs(p_tail - p_full).max() <= err_p + full[5][0] + 1e-12
-    assert abs(tail[1] - full[1]) <= err_p + full[5][0] + 1e-12
-    for i in range(3):
-        if p_full[i] > 1e-6:
-            rt_full = times @ full[0][:, i] / p_full[i]
-            rt_tail = times @ tail[0][:, i] / p_tail[i]
-            weight = min(1.0, p_full[i] / 0.01)
-            assert weight * abs(rt_tail / rt_full - 1.0) <= err_rt + 1e-9
-    return full, tail
-
-
-def test_hazard_drift_of_a_slow_mode_is_measured_over_longer_windows():
-    """A hazard approaching its limit by a factor 0.998 per step shrinks by 0.951 per 25-step
-    window, too slowly to count as geometric there; over doubled windows it does, and the
-    distance estimated still to go covers the true one."""
-    from mdft import _plane_tail
-
-    t = np.arange(3000)
-    hazard = 1e-3 - 1e-4 * 0.998**t
-    hazard[0] = 0.0
-    u = 1200
-    w = _plane_tail.WINDOW
-    assert _plane_tail.drift(hazard[u - 3 * w], hazard[u - 2 * w], hazard[u - w],
-                             hazard[u]) == -1.0
-    rest = 1e-4 * 0.998**u
-    assert rest <= _plane_tail._hazard_drift(hazard, u) <= 2.5 * rest
-    # a hazard still at 0 at the start of the longest window is not a geometric approach
-    assert _plane_tail._hazard_drift(np.r_[np.zeros(200), hazard[200:]], 230) == -1.0
-
-
-def slow_mode_model():
-    """Seed 2026 model 5 of the benchmark: a long deliberation whose hazard settles by about
-    0.998 per step."""
-    model = MDFTModel([[3.257, 2.737, 2.809], [2.411, 3.710, 1.316], [2.598, 3.350, 0.972]],
-                      [0.5958, 0.2729, 0.1313], phi1=0.03285, phi2=0.03892, beta=10.18,
-                      sigma2=0.3481)
-    return model, 41.77
-
-
-def test_tail_of_a_slow_next_mode_is_filled_within_its_estimate():
-    """A long deliberation whose hazard settles by about 0.998 per step (seed 2026, model 5
-    of the benchmark, on a coarse grid): the tail is filled before the step limit, where a
-    25-step window alone never sees a geometric drift, and within its own estimate."""
-    from mdft._plane_chain import build_moment_chain
-
-    model, theta = slow_mode_model()
-    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-    chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
-    steps = 10_000
-    full, tail = tail_against_full(chain, steps, krylov=False)
-    assert tail[3] < 0.7 * steps  # filled well before the limit
-    # where it was filled, the drift over 25 steps is not (yet) geometric
-    from mdft import _plane_tail
-
-    chosen = full[0].sum(axis=1)
-    hazard = chosen / np.r_[1.0, 1.0 - np.cumsum(chosen)[:-1]]
-    u, w = tail[3] - 1, _plane_tail.WINDOW
-    assert _plane_tail.drift(hazard[u - 3 * w], hazard[u - 2 * w], hazard[u - w],
-                             hazard[u]) == -1.0
-
-
 @settings(deadline=None, max_examples=10)
 @given(
     a=st.lists(st.floats(0.0, 4.0), min_size=2, max_size=2),
@@ -909,30 +483,6 @@ model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.
 res = mdft.threshold_probabilities(model, 3.0, max_steps=200, atol=0.05, rt_rtol=0.2)
 print(json.dumps([res.probabilities.tolist(), res.mean_response_times.tolist()]))
 """
-
-
-@pytest.mark.parametrize("in_parts", [False, True])
-def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_parts):
-    # One step of the moment chain from a state whose sum is spread around its reference
-    # s_ref with variance delta**2 (no mean deviation): the staying probability is linear
-    # in the sum, T(s) = t0 + t1 (s - s_ref), and the next sum is s' = s_next + b (s - s_ref),
-    # so the first moment reaching the next state is E[s' T(s)] = s_next t0 + b t1 delta**2.
-    # The same, serially and in parallel parts.
-    from mdft import _plane_moment
-    from mdft._plane_chain import tail_track
-
-    t0, t1, s_ref, s_next, b, delta = 0.6, 0.05, 10.0, 9.0, 0.9, 1.5
-    x = np.array([1.0, 0.0])
-    m = np.array([s_ref, 0.0])
-    q = np.zeros(2)
-    rt_pmf = np.zeros((2, 3))
-    _plane_moment.propagate(
-        np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
-        np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
-        b, delta**2, x, m, q, rt_pmf, np.zeros((2, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(3),
-        in_parts, np.zeros(2, dtype=bool), 2, 1, *tail_track(2, 2), np.inf)
-    assert x[1] == pytest.approx(t0)
-    assert m[1] == pytest.approx(s_next * t0 + b * t1 * delta**2)
 
 
 def test_compiled_and_interpreted_kernels_agree():
@@ -1054,18 +604,6 @@ def test_bad_model():
     started = canonical([A, B]).replace(P0=[6.0, -6.0])
     with pytest.raises(ValueError, match="P0 must lie below theta"):
         threshold_probabilities(started, 5.0)
-
-
-def test_slow_start_is_not_mistaken_for_the_geometric_tail():
-    # A two-option walk that needs hundreds of steps to reach a distant threshold: while the
-    # mass is on its way, the per-step choices are tiny and steady, which an earlier tail
-    # detector took for the slowest mode, returning p_undecided = 1 with a zero error estimate.
-    M = [[3.2911181, 2.62348387, 1.70785203], [3.81386927, 2.47182081, 2.01466959]]
-    w = [0.23881413, 0.40882123, 0.35236464]
-    model = MDFTModel(M, w, phi1=0.02, phi2=0.0533, beta=1.0, sigma2=0.2)
-    res = threshold_probabilities(model, 30.0, max_steps=3000)
-    assert res.p_undecided < 1e-3
-    assert_matches_simulation(res, model, 30.0, 20_000, 8, max_steps=3000)
 
 
 def test_pilot_passes_run_one_step_coarser_than_the_counted_passes(monkeypatch):
@@ -1206,7 +744,6 @@ def test_a_slow_refinement_within_reach_is_carried_to_the_end():
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
 
 
-
 # Draws of random_model (seeds of np.random.default_rng) answered at the half step 2**(-1/4)
 # whose answer at tolerances three times tighter refines at least twice further (of the first
 # 80 seeds, 23 are answered there; at tighter tolerances most are refused by their closure)
@@ -1232,18 +769,6 @@ def test_a_half_step_answer_is_within_its_estimate_of_a_finer_one(seed):
         if p >= 0.01:  # the estimate weighs rarer options' times in proportion
             change = abs(res.mean_response_times[i] / fine.mean_response_times[i] - 1.0)
             assert change <= res.error_mean_rt + fine.error_mean_rt
-
-
-def test_an_unstable_moment_closure_is_refused_with_its_reason():
-    """Two near-identical options, almost no leakage and a long deliberation: the first-order
-    closure in the summed preference grows without bound on this model (a pass's
-    probabilities summed to 1e34). The call refuses and says why, instead of reporting an
-    error estimate of that size."""
-    model = MDFTModel([[4.72, 9.53], [0.32, 0.41], [4.31, 9.96]], [0.462, 0.538],
-                      phi1=0.0584, phi2=0.0694, beta=21.85, sigma2=0.3006)
-    with pytest.raises(ValueError, match="moment closure of the summed preference is "
-                                         "unstable for this model"):
-        threshold_probabilities(model, 41.98, max_steps=3000, fallback="raise")
 
 
 def test_a_mean_time_below_one_step_is_unresolved_and_its_change_counts_in_full():
