@@ -22,10 +22,11 @@ def _dispatchers(module):
 
 
 def _called_from_python(package, module_name):
-    """Kernels that the package's Python modules call as ``<module_name>.<kernel>(``."""
+    """Kernels that the package's Python modules (public or private, the kernel module itself
+    aside) call as ``<module_name>.<kernel>(``."""
     names = set()
     for path in (ROOT / package).glob("*.py"):
-        if path.stem.startswith("_") and path.stem != "__init__":
+        if path.stem == module_name:
             continue
         names |= set(re.findall(rf"\b{module_name}\.(\w+)\(", path.read_text()))
     return names
