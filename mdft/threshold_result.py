@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._export import builtin
+
 __all__ = ["ThresholdProbabilities"]
 
 
@@ -147,22 +149,9 @@ class ThresholdProbabilities:
         >>> len(json.dumps(d)) > 0
         True
         """
-        def clean(x):
-            if isinstance(x, np.ndarray):
-                return clean(x.tolist())
-            if isinstance(x, list):
-                return [clean(v) for v in x]
-            if isinstance(x, (float, np.floating)):
-                return None if not math.isfinite(float(x)) else float(x)
-            if isinstance(x, (np.integer,)):
-                return int(x)
-            if isinstance(x, np.bool_):
-                return bool(x)
-            return x
-
         names = ("probabilities", "p_undecided", "rt_pmf", "mean_response_times", "theta",
                  "max_steps", "n_cells", "spacing", "n_levels", "n_states", "method", "n_iter",
                  "converged", "tail_start", "engine", "resolution", "error_probabilities",
                  "error_mean_rt")
-        return {name: clean(getattr(self, name)) for name in names}
+        return {name: builtin(getattr(self, name)) for name in names}
 

@@ -525,24 +525,27 @@ class MDFTOrchestrator(Orchestrator):
         # Conditional on deciding: dividing by the probability d of deciding divides the
         # error too, so where d < 1 - CONDITIONAL_RERUN the answer is asked again with the
         # tolerance scaled by d (one more call; the chain or its simulation may refuse).
-        atol = THRESHOLD_ATOL
-        for _ in range(2):
-            try:
-                res = mdft.threshold_probabilities(model, self.threshold, max_steps=self.n_steps,
-                                                   atol=atol)
-            except ValueError as exc:
-                raise ValueError(f"state {s}: {exc}") from exc
-            decided = 1.0 - res.p_undecided
-            if decided < 1e-9:
-                raise ValueError(
-                    f"state {s}: a deliberation almost never reaches threshold={self.threshold:g} "
-                    f"within n_steps={self.n_steps} steps (probability {decided:.3g}); raise "
-                    "n_steps or lower the threshold"
-                )
-            if decided >= 1.0 - CONDITIONAL_RERUN or atol < THRESHOLD_ATOL:
-                break
-            atol = THRESHOLD_ATOL * decided
+        res, decided = self._threshold_answer(s, model, THRESHOLD_ATOL)
+        if decided < 1.0 - CONDITIONAL_RERUN:
+            res, _ = self._threshold_answer(s, model, THRESHOLD_ATOL * decided)
         return np.asarray(res.probabilities) / res.probabilities.sum()
+
+    def _threshold_answer(self, s, model, atol):
+        """:func:`mdft.threshold_probabilities` and the probability of deciding, or a
+        ValueError naming the state."""
+        try:
+            res = mdft.threshold_probabilities(model, self.threshold, max_steps=self.n_steps,
+                                               atol=atol)
+        except ValueError as exc:
+            raise ValueError(f"state {s}: {exc}") from exc
+        decided = 1.0 - res.p_undecided
+        if decided < 1e-9:
+            raise ValueError(
+                f"state {s}: a deliberation almost never reaches threshold={self.threshold:g} "
+                f"within n_steps={self.n_steps} steps (probability {decided:.3g}); raise "
+                "n_steps or lower the threshold"
+            )
+        return res, decided
 
     def _decide(self, states, generator):
         out = np.empty(states.size, dtype=np.int64)
