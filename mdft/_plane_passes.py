@@ -74,7 +74,7 @@ def narrow_everywhere(model, theta, kappa):
             "not trusted")
 
 
-def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
+def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, cheaper=None):
     """Computations of increasing resolution for three options (the moment chain).
 
     Before the first, two pilot passes at the coarsest resolution (the first
@@ -85,6 +85,13 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
     (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
     walks of passes at the first resolution that counts, the last change joining
     the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
+
+    ``cheaper(answer, nonzeros, steps)``, when given, is asked after the first pilot (unless
+    it was cut), with its answer (``probabilities``, ``p_undecided``, ``rt_pmf``),
+    the nonzeros that the first pass that counts, its probes and the next pass are expected
+    to build (each refinement by ``REFINE`` four times the nonzeros of the grid before), and
+    the pilot's steps; what it returns other than None (a simulated answer) is the first
+    run's result.
     """
     # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
     # odd powers of HALF_STEP)
@@ -107,7 +114,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
         return chain, out, cut
 
     def pilot(k):
-        for _ in range(PILOT_PASSES):
+        for i in range(PILOT_PASSES):
             chain, out, cut = fitting_pass(k, PILOT_STEPS, 1e-6)
             occ, steps = out[4], out[2]
             if cut:
@@ -119,9 +126,25 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
             if steps == 0:
                 break  # nothing to fit: the reference sums and spread stay as they were
             state["ref"], state["delta"] = reference_sums(chain, occ)
+            if i == 0 and cheaper is not None and not cut:
+                # the first pilot's answer tells what simulating would cost
+                state["simulated"] = ask_cheaper(chain, out)
+                if state["simulated"] is not None:
+                    return
         if limit:
             # a cut pilot's occupation stops short of where the walks go: every row
             state["near"] = None if cut else near_occupied(chain, occ)
+
+    def ask_cheaper(chain, out):
+        # the passes ahead at the least: the first that counts with its two probes (where the
+        # sum moves), on a grid REFINE finer than the pilots', and the next
+        passes = 3 if state["delta"] > 0.0 else 1
+        nonzeros = chain.cols.shape[0] * (passes * REFINE**4 + REFINE**8)
+        # (negative choices of the pilot's closure, its error, do not count for a prediction)
+        rt_pmf = np.maximum(out[0], 0.0)
+        answer = SimpleNamespace(probabilities=rt_pmf.sum(axis=0), p_undecided=max(out[1], 0.0),
+                                 rt_pmf=rt_pmf)
+        return cheaper(answer, nonzeros, out[2])
 
     def run(k, delta, ref_map=None):
         if solve["method"] == "propagate":
@@ -217,6 +240,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances):
                 # the pilots fit the reference sums on a grid one step coarser (a quarter of the
                 # nonzeros): the fit is a plane and a spread, which need no finer grid
                 pilot(k * REFINE)
+                if state.get("simulated") is not None:
+                    return state["simulated"]
                 if state.get("cut"):
                     refit(k)
             result = run(k, state["delta"])

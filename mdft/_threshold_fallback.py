@@ -83,9 +83,13 @@ def refuse_if_far_over_budget(reason, max_steps, answer, atol, rt_rtol):
                           f" (predicted from the chain's answer at {answer.n_states} states)")
 
 
+class OverBudget(ValueError):
+    """Simulating to the tolerances would take more trial-steps than the budget allows."""
+
+
 def over_budget(reason, trials, per_trial, how=""):
     """The error raised when simulating to the tolerances would exceed :data:`MAX_WORK`."""
-    return ValueError(
+    return OverBudget(
         f"threshold_probabilities cannot vouch for this model: the chain refused "
         f"({reason}), and its simulation fallback would need about {trials:.3g} trials "
         f"of {per_trial:.0f} steps on average{how}, more than its budget of {MAX_WORK:.3g} "
@@ -94,12 +98,16 @@ def over_budget(reason, trials, per_trial, how=""):
     )
 
 
-def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result):
-    """The simulated answer, or ValueError when the work budget cannot meet the tolerances.
+def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result,
+                     max_work=None):
+    """The simulated answer, or :class:`OverBudget` when ``max_work`` trial-steps (at most
+    :data:`MAX_WORK`, the default) cannot meet the tolerances (the first batch is always
+    simulated).
 
     ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
     builds the result object; ``reason`` says why the chain refused.
     """
+    max_work = MAX_WORK if max_work is None else min(max_work, MAX_WORK)
     gen = np.random.default_rng(DEFAULT_SEED if rng is None else rng)
     n_opt = model.n_options
     counts = np.zeros(n_opt, dtype=np.int64)
@@ -129,7 +137,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
         # trials needed: errors shrink as 1 / sqrt(n)
         need = n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1
         per_trial = work / n
-        if need * per_trial > MAX_WORK:
+        if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
         batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -27,7 +27,7 @@ from ._lattice_chain import build_chain
 from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
-from ._threshold_fallback import (predicted_work, refuse_if_far_over_budget,
+from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import as_count, as_scalar
@@ -69,6 +69,12 @@ _FIRST_PAIR_FACTOR = 1.0 / (REFINE - 1.0)
 # chain to chain); the fallback simulates when that costs less than the next refinement.
 _BUILD_WORK = 150.0
 _SIM_STEP_WORK = 17.0
+# The same count decides before the first pass that counts, from the first pilot's answer:
+# where simulating costs less than _EARLY_SHARE of that pass, its probes and the next (the
+# coarse pilot's prediction is rougher than a counted pass's), the call simulates; if the
+# trials then need more than _SIM_OVERRUN times the passes' work, the chain goes on instead.
+_EARLY_SHARE = 0.6
+_SIM_OVERRUN = 2.0
 
 
 def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=3e-3,
@@ -142,8 +148,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         every probability are within ``atol`` and of every mean response time
         within ``rt_rtol`` (``engine="simulation"``; the error fields are those
         three standard errors), raising if that needs more than 2e9
-        trial-steps; ``"raise"`` raises ValueError at once (what fitting uses:
-        a likelihood must not switch to a noisy method mid-optimisation).
+        trial-steps. It also simulates, for three options, where simulating
+        to the tolerances is counted to cost less than the chain's next
+        grid, or (from the first pilot pass's answer) than its first passes
+        (``docs/threshold_exact.md``, section 4). ``"raise"`` raises
+        ValueError at once and never simulates (what fitting uses: a
+        likelihood must not switch to a noisy method mid-optimisation).
     rng : None, int or numpy.random.Generator
         Source of the fallback's trials; None uses a fixed seed, so calls are
         repeatable.
@@ -301,8 +311,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     elif n == 2:
         runs = _binary_runs(model, theta, n_cells, max_states, solve)
     else:
+        cheaper = None
+        if fallback == "simulation" and method == "propagate":
+            cheaper = partial(_simulated_if_cheaper, model=model, theta=theta,
+                              max_steps=max_steps, atol=atol, rt_rtol=rt_rtol, rng=rng)
         runs = plane_runs(model, theta, resolution or KAPPA, max_states, solve, closure,
-                           (atol, rt_rtol))
+                           (atol, rt_rtol), cheaper)
     coarse = fine = None
     # the comparison partner of the next pass: the last pass that was not a half step
     partner = partner_tail = None
@@ -318,6 +332,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         except TooManyStates as exc:
             reason = str(exc)
             break
+        if result.engine == "simulation":
+            return result  # the pilots foresaw that simulating costs less than the chain
         coarse, fine = partner, result
         # the change that each pass's extrapolated tail may make (three options)
         own_tail = (own_error(result.error_probabilities), own_error(result.error_mean_rt))
@@ -469,6 +485,32 @@ def _out_of_reach(grid_errors, spread, tolerances, left):
                     f"would stay above the {room:.2g} the closure leaves after the "
                     f"{left} finer grid{'s' if left > 1 else ''} still possible")
     return ""
+
+
+def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, atol, rt_rtol,
+                          rng):
+    """The simulated answer where the first pilot's ``answer`` predicts that simulating to
+    the tolerances costs less than ``_EARLY_SHARE`` of building and running ``nonzeros`` for
+    ``steps`` steps (the chain's passes ahead, at the least); None where it does not, or
+    where the trials turn out to need more than ``_SIM_OVERRUN`` times that work (the chain
+    then goes on)."""
+    sim_work = _SIM_STEP_WORK * predicted_work(max_steps, answer.probabilities,
+                                               answer.p_undecided, answer.rt_pmf, atol, rt_rtol)
+    chain_work = nonzeros * (_BUILD_WORK + steps)
+    if not sim_work < _EARLY_SHARE * chain_work:
+        return None
+    reason = (f"the first pilot pass predicts {sim_work:.3g} units of work for simulating to "
+              f"the tolerances, against {chain_work:.3g} for the chain's next passes")
+    logger.info("threshold_probabilities: %s; simulating", reason)
+    trial_steps = _SIM_OVERRUN * chain_work / max(_SIM_STEP_WORK, 1e-9)
+    try:
+        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
+                                partial(_simulated_result, theta=theta, max_steps=max_steps),
+                                max_work=trial_steps)
+    except OverBudget:
+        logger.info("threshold_probabilities: the trials need more than predicted; "
+                    "building the chain")
+        return None
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,

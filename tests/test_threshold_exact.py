@@ -247,12 +247,18 @@ def test_refused_chain_falls_back_to_a_simulation_within_its_stated_error(monkey
         threshold_probabilities(model, 6.0, max_states=10)
 
 
+def _no_early_simulation(monkeypatch):
+    # the first pilot's check (test_simulates_from_the_start_...) aside: the chain's passes
+    monkeypatch.setattr(threshold_exact, "_simulated_if_cheaper", lambda *a, **k: None)
+
+
 def test_simulation_answers_when_it_costs_less_than_a_finer_grid(monkeypatch):
     # with simulation counted as free, a chain that needs a refinement hands over to it, and
     # the reason says so; counted as dear, the chain refines instead. Both paths are
     # deterministic (counted work, not timings).
     model = canonical(SETS["compromise"])
     loose = dict(atol=0.004, rt_rtol=0.01)
+    _no_early_simulation(monkeypatch)
     monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 0.0)
     monkeypatch.setattr(threshold_exact, "_FIRST_PAIR_FACTOR", 1e6)  # always refine
     res = threshold_probabilities(model, 6.0, **loose)
@@ -263,12 +269,113 @@ def test_simulation_answers_when_it_costs_less_than_a_finer_grid(monkeypatch):
     assert res.engine == "plane" and res.resolution < 1.0
 
 
+# a long, nearly certain deliberation (one option, about 52 steps, little noise): the pilots'
+# chain has many states, while a hundred thousand short trials settle every tolerance
+QUICK_TO_SIMULATE = dict(M=[[1.1, 0.9, 1.1], [3.5, 1.1, 0.5], [3.1, 3.0, 2.2]],
+                         w=[0.22, 0.41, 0.37], phi1=0.0066, phi2=0.014, beta=7.0, sigma2=0.125)
+
+
+def _count_builds(monkeypatch):
+    built = []
+    build = _plane_passes.build_moment_chain
+
+    def counted(*args, **kwargs):
+        built.append(args[2])  # the resolution
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(_plane_passes, "build_moment_chain", counted)
+    return built
+
+
+def test_simulates_from_the_start_where_the_first_pilot_predicts_it_costs_less(monkeypatch):
+    # the first pilot's answer predicts the trials; simulating them costs less than the
+    # passes ahead, so the call simulates after that one chain, within its stated error of
+    # the chain's own answer (which fallback="raise", what fitting uses, still gives)
+    model = MDFTModel(**QUICK_TO_SIMULATE)
+    built = _count_builds(monkeypatch)
+    res = threshold_probabilities(model, 55.5)
+    assert res.engine == "simulation" and len(built) == 1
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    built.clear()
+    chain = threshold_probabilities(model, 55.5, fallback="raise")
+    assert chain.engine == "plane" and len(built) > 3
+    np.testing.assert_allclose(res.probabilities, chain.probabilities,
+                               atol=res.error_probabilities + chain.error_probabilities)
+    assert res.mean_response_times[2] == pytest.approx(
+        chain.mean_response_times[2], rel=res.error_mean_rt + chain.error_mean_rt)
+    # counted as dear, simulation waits for the chain as before
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 1e12)
+    built.clear()
+    assert threshold_probabilities(model, 55.5).engine == "plane" and len(built) > 3
+
+
+def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(monkeypatch):
+    # where the trials turn out to need more than _SIM_OVERRUN times the predicted chain
+    # work, the simulation stops after its first batch and the chain goes on from its pilot
+    from mdft import _threshold_fallback as fb
+
+    model = MDFTModel(**QUICK_TO_SIMULATE)
+    trials = []
+    simulate = fb.simulate
+
+    def counted(model, n, **kwargs):
+        trials.append(n)
+        return simulate(model, n, **kwargs)
+
+    monkeypatch.setattr(fb, "simulate", counted)
+    monkeypatch.setattr(fb, "FIRST_BATCH", 1_000)  # too few trials for the tolerances
+    monkeypatch.setattr(threshold_exact, "_SIM_OVERRUN", 1e-3)
+    built = _count_builds(monkeypatch)
+    res = threshold_probabilities(model, 55.5)
+    # one batch, then the second pilot and the passes that count
+    assert trials[0] == 1_000 and len(built) > 3 and built[1] == built[0]
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    if res.engine == "simulation":
+        # handed over later by the count after a comparison (the first batch is now small):
+        # a simulation of its own, the abandoned batch not in it
+        assert res.n_iter == sum(trials[1:])
+    else:
+        assert res.engine == "plane" and trials == [1_000]
+
+
+def test_the_first_pilots_prediction_decides_by_count_alone(monkeypatch):
+    # _simulated_if_cheaper simulates exactly where the predicted work is below the share of
+    # the chain's; the pilot's answer comes clipped of its closure's negative choices
+    from mdft import _threshold_fallback as fb
+
+    rt_pmf = np.zeros((200, 3))
+    rt_pmf[99] = [1.0, 0.0, 0.0]  # every trial chooses option 0 at step 100
+    answer = SimpleNamespace(probabilities=rt_pmf.sum(axis=0), p_undecided=0.0, rt_pmf=rt_pmf)
+    work = threshold_exact._SIM_STEP_WORK * fb.predicted_work(1_000, answer.probabilities, 0.0,
+                                                              rt_pmf, 1e-3, 3e-3)
+    assert work == pytest.approx(threshold_exact._SIM_STEP_WORK * fb.FIRST_BATCH * 100)
+    calls = []
+    monkeypatch.setattr(threshold_exact, "simulated_answer",
+                        lambda *a, **k: calls.append(k["max_work"]) or "simulated")
+    kw = dict(model=None, theta=1.0, max_steps=1_000, atol=1e-3, rt_rtol=3e-3, rng=None)
+    chain = work / threshold_exact._EARLY_SHARE  # the chain's work at the share exactly
+    steps = 10
+    nonzeros = chain / (threshold_exact._BUILD_WORK + steps)
+    assert threshold_exact._simulated_if_cheaper(answer, 0.99 * nonzeros, steps, **kw) is None
+    assert threshold_exact._simulated_if_cheaper(answer, 1.01 * nonzeros, steps,
+                                                 **kw) == "simulated"
+    assert calls == [pytest.approx(threshold_exact._SIM_OVERRUN * 1.01 * chain
+                                   / threshold_exact._SIM_STEP_WORK)]
+    # a prediction that is no number (negative shares) never simulates
+    bad = SimpleNamespace(probabilities=np.array([-0.2, 0.7, 0.5]), p_undecided=0.0,
+                          rt_pmf=rt_pmf)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert threshold_exact._simulated_if_cheaper(bad, 1e12, steps, **kw) is None
+
+
 def test_fallback_far_over_its_budget_refuses_without_simulating(monkeypatch):
     # where the chain's last answer predicts more than twice the fallback's work budget, the
     # call refuses at once and says so; no trial is simulated
     from mdft import _threshold_fallback as fb
 
     model = canonical(SETS["compromise"])
+    _no_early_simulation(monkeypatch)
     monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 0.0)  # hand over after one pair
     monkeypatch.setattr(threshold_exact, "_FIRST_PAIR_FACTOR", 1e6)
 
