@@ -279,8 +279,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if fallback == "simulation" and method == "propagate":
             reason = f"no chain for {n} options (at most {_MAX_OPTIONS})"
             logger.info("threshold_probabilities: %s; simulating", reason)
-            return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
-                                    partial(_simulated_result, theta=theta, max_steps=max_steps))
+            return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason)
         raise ValueError(
             f"model has {n} options; the chain handles at most {_MAX_OPTIONS} (its state "
             "space grows with every option); with fallback='simulation' and "
@@ -399,8 +398,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             # one nonzero
             ratio = HALF_STEP if half or try_half else REFINE
             chain_work = ratio**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
-            sim_work = _SIM_STEP_WORK * predicted_work(
-                max_steps, fine.probabilities, fine.p_undecided, fine.rt_pmf, atol, rt_rtol)
+            sim_work = _simulation_work(fine, max_steps, atol, rt_rtol)
             if sim_work < chain_work:
                 reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities and "
                           f"{err_rt + spread_rt:.2g} relative in the mean response times at "
@@ -435,8 +433,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             # the budget, say so now instead of after a first batch of trials
             refuse_if_far_over_budget(reason, max_steps, fine, atol, rt_rtol)
         logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
-        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
-                                partial(_simulated_result, theta=theta, max_steps=max_steps))
+        return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason)
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="
         f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
@@ -494,23 +491,34 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
     ``steps`` steps (the chain's passes ahead, at the least); None where it does not, or
     where the trials turn out to need more than ``_SIM_OVERRUN`` times that work (the chain
     then goes on)."""
-    sim_work = _SIM_STEP_WORK * predicted_work(max_steps, answer.probabilities,
-                                               answer.p_undecided, answer.rt_pmf, atol, rt_rtol)
+    sim_work = _simulation_work(answer, max_steps, atol, rt_rtol)
     chain_work = nonzeros * (_BUILD_WORK + steps)
     if not sim_work < _EARLY_SHARE * chain_work:
         return None
     reason = (f"the first pilot pass predicts {sim_work:.3g} units of work for simulating to "
               f"the tolerances, against {chain_work:.3g} for the chain's next passes")
     logger.info("threshold_probabilities: %s; simulating", reason)
-    trial_steps = _SIM_OVERRUN * chain_work / max(_SIM_STEP_WORK, 1e-9)
     try:
-        return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
-                                partial(_simulated_result, theta=theta, max_steps=max_steps),
-                                max_work=trial_steps)
+        return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason,
+                          max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK)
     except OverBudget:
         logger.info("threshold_probabilities: the trials need more than predicted; "
                     "building the chain")
         return None
+
+
+def _simulation_work(answer, max_steps, atol, rt_rtol):
+    """Work of simulating to the tolerances, predicted from ``answer``, in units of
+    propagating a nonzero by one step."""
+    return _SIM_STEP_WORK * predicted_work(max_steps, answer.probabilities, answer.p_undecided,
+                                           answer.rt_pmf, atol, rt_rtol)
+
+
+def _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason, max_work=None):
+    """The simulation fallback's answer as a ThresholdProbabilities (``engine="simulation"``)."""
+    return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
+                            partial(_simulated_result, theta=theta, max_steps=max_steps),
+                            max_work=max_work)
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,
