@@ -59,13 +59,18 @@ def _basis(model):
     return np.ascontiguousarray(E)
 
 
+class UnboundedSum(ValueError):
+    """The chain's worst-case range of the summed preference holds no finite grid."""
+
+
 def sum_bounds(S, theta, s0):
     """Smallest interval of summed preference ``1^T P`` that the chain can reach.
 
     ``s(t+1) = c^T P(t)`` with ``c = 1^T S``; over the transient region
     ``{P_i < theta, 1^T P = s}`` it is extreme at a vertex (every preference
     at ``theta`` but one), which gives linear bounds in ``s``; iterate them to
-    their fixed point.
+    their fixed point. Raises :class:`UnboundedSum` where they have none (a column
+    sum above 1 lets the worst case fall without bound).
     """
     n = S.shape[0]
     c = S.sum(axis=0)
@@ -86,17 +91,36 @@ def sum_bounds(S, theta, s0):
         new_lo = min(lo, min(vals))
         new_hi = min(max(hi, max(vals)), n * theta)
         if new_lo < -limit:
-            raise ValueError(
-                "the feedback matrix S lets the summed preference 1^T P grow without bound "
-                f"(column sums of S: {np.round(c, 6).tolist()}), so no finite lattice holds "
-                "the preference state; use mdft.simulate for this model"
+            radius = float(np.abs(np.linalg.eigvals(S)).max())
+            raise UnboundedSum(
+                "the chain bounds the summed preference 1^T P by its worst case over the "
+                "undecided states, and with a column sum of S above 1 (column sums "
+                f"{np.round(c, 6).tolist()}) that worst case falls without bound, so no finite "
+                f"grid holds every state the chain can reach (the spectral radius of S is "
+                f"{radius:.4g}: the process itself "
+                f"{'is stable' if radius < 1.0 else 'is not stable either'})"
             )
         if new_lo - lo > -1e-12 * (1 + abs(lo)) and new_hi - hi < 1e-12 * (1 + abs(hi)):
             return new_lo, new_hi
         lo, hi = new_lo, new_hi
-    raise ValueError(  # pragma: no cover - the bounds converge geometrically
-        "could not bound the summed preference 1^T P; use mdft.simulate for this model"
+    raise UnboundedSum(  # pragma: no cover - the bounds converge geometrically
+        "the chain could not bound the summed preference 1^T P"
     )
+
+
+def chain_sum_bounds(S, theta, s0):
+    """:func:`sum_bounds` for a chain of ``n`` options, which also needs the summed
+    preference to stay below ``n * theta`` for three options (where every preference could
+    cross at once, which the chains do not represent): raises :class:`UnboundedSum` if not."""
+    n = S.shape[0]
+    s_lo, s_hi = sum_bounds(S, theta, s0)
+    if n == 3 and s_hi >= n * theta - 1e-9:
+        raise UnboundedSum(
+            "the worst case of the summed preference 1^T P under S reaches 3 * theta (column "
+            f"sums of S {np.round(S.sum(axis=0), 6).tolist()}), where every preference can "
+            "cross the threshold at once, which the chain does not represent"
+        )
+    return s_lo, s_hi
 
 
 def pair_parameters(cov, sd_opt):
@@ -133,12 +157,7 @@ def build_chain(model, theta, n_cells, variance_correction):
     if sum_is_constant(S, s0):
         s_lo = s_hi = s0
     else:
-        s_lo, s_hi = sum_bounds(S, theta, s0)
-        if n == 3 and s_hi >= n * theta - 1e-9:
-            raise ValueError(
-                "the feedback matrix S lets the summed preference reach n_options * theta, "
-                "where all preferences can cross together; use mdft.simulate for this model"
-            )
+        s_lo, s_hi = chain_sum_bounds(S, theta, s0)
     if s_hi - s_lo > 0.0:
         n_levels = max(2, int(math.ceil((s_hi - s_lo) / h)) + 1)
         levels = np.linspace(s_lo, s_hi, n_levels)

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _plane_moment
-from ._lattice_chain import pair_parameters, sum_bounds, sum_is_constant
+from ._lattice_chain import chain_sum_bounds, pair_parameters, sum_is_constant
 from ._plane_krylov import krylov_tail
 
 logger = logging.getLogger(__name__)
@@ -122,12 +122,7 @@ def plane_geometry(model, theta, kappa, margin=0.0):
     if sum_is_constant(S, s0):
         s_lo, s_hi, hs, n_levels = s0, s0, 1.0, 1
     else:
-        s_lo, s_hi = sum_bounds(S, theta, s0)
-        if s_hi >= 3 * theta - 1e-9:
-            raise ValueError(
-                "the feedback matrix S lets the summed preference reach 3 * theta, where all "
-                "preferences can cross together; use mdft.simulate for this model"
-            )
+        s_lo, s_hi = chain_sum_bounds(S, theta, s0)
         hs = _LEVEL_FACTOR * h.min()
         n_levels = max(2, int(math.ceil((s_hi - s_lo) / hs)) + 1)
         hs = (s_hi - s_lo) / (n_levels - 1)

@@ -23,7 +23,7 @@ from functools import partial
 
 import numpy as np
 
-from ._lattice_chain import build_chain
+from ._lattice_chain import UnboundedSum, build_chain, chain_sum_bounds, sum_is_constant
 from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
@@ -94,7 +94,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     model : MDFTModel
         The model. The chain needs two or three options, ``sigma2 > 0`` and a
         contrast ``C`` whose columns sum to zero (the standard one does);
-        more options are simulated (``fallback="simulation"``).
+        more options, no noise, and a feedback matrix with a column sum above 1
+        are simulated (``fallback="simulation"``).
     theta : float
         Threshold, > 0: option ``i`` is chosen at the first step where
         ``P_i >= theta``; if several preferences reach it at the same step,
@@ -143,7 +144,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         Largest chain the method may build to meet the tolerances.
     fallback : {"simulation", "raise"}, default "simulation"
         What to do when the chain cannot meet ``atol`` and ``rt_rtol`` within
-        ``max_states`` (``method="propagate"`` only): ``"simulation"``
+        ``max_states``, or no chain can answer for the model (more than three
+        options, no noise, or a feedback matrix whose worst case of the summed
+        preference has no finite range) (``method="propagate"`` only): ``"simulation"``
         simulates trials in growing batches until three standard errors of
         every probability are within ``atol`` and of every mean response time
         within ``rt_rtol`` (``engine="simulation"``; the error fields are those
@@ -167,11 +170,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     Raises
     ------
     ValueError
-        Bad arguments; a model with more than three options (unless the
-        fallback simulates it) or, for the chain, without noise
-        (use :func:`mdft.simulate`); a contrast whose columns do not sum to
+        Bad arguments; a model with more than three options, without noise, or
+        with a feedback matrix under which the chain's worst case of the summed
+        preference is not bounded (a column sum of ``S`` above 1), unless the
+        fallback simulates it; a contrast whose columns do not sum to
         zero; an initial preference at or above ``theta``; a feedback matrix
-        under which the summed preference is not bounded, or is unstable (equal
+        under which the summed preference is unstable (equal
         column sums of magnitude above 1, as with ``phi2 > 2 / n_options`` and
         ``phi1 = 0``); a model for which
         the estimated error cannot be brought below the tolerances within
@@ -285,12 +289,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             "space grows with every option); with fallback='simulation' and "
             "method='propagate' (the defaults) the answer is simulated to the tolerances"
         )
-    if not model.sigma2 > 0.0:
-        raise ValueError(
-            f"the model has no noise (sigma2={model.sigma2:g}); the chain needs sigma2 > 0 "
-            "to vouch for its answer; use mdft.simulate(model, n_samples, "
-            "stopping=mdft.Threshold(theta))"
-        )
     C = np.asarray(model.C)
     col = np.abs(C.sum(axis=0)).max()
     if col > 1e-9 * max(1.0, np.abs(C).max()):
@@ -304,9 +302,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0), settled=True)
-    reason = narrow_everywhere(model, theta, resolution or KAPPA) if n == 3 else ""
+    reason = _no_chain(model, theta, resolution)
     if reason:
-        runs = []  # no pass can be trusted: refuse (or simulate) before building any chain
+        runs = []  # no chain holds the states, or no pass can be trusted: refuse (or simulate)
     elif n == 2:
         runs = _binary_runs(model, theta, n_cells, max_states, solve)
     else:
@@ -427,18 +425,46 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                 reason += hopeless
                 break
     if fallback == "simulation" and method == "propagate":
-        reason = f"within max_states={max_states}: {reason}"
+        if runs:
+            reason = f"within max_states={max_states}: {reason}"
         if fine is not None:
             # the chain's last answer tells about how much simulating would take: far over
             # the budget, say so now instead of after a first batch of trials
             refuse_if_far_over_budget(reason, max_steps, fine, atol, rt_rtol)
         logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
         return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason)
+    if not runs:
+        raise ValueError(
+            f"threshold_probabilities cannot vouch for this model: {reason}. With "
+            "fallback='simulation' and method='propagate' (the defaults) it is simulated to "
+            "the tolerances; or estimate threshold stopping with mdft.simulate(model, "
+            "n_samples, stopping=mdft.Threshold(theta))"
+        )
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="
         f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
     )
+
+
+def _no_chain(model, theta, resolution):
+    """Why no chain can answer for the model, known before building any, or "": no noise;
+    a summed preference whose worst case has no finite range below ``n * theta``; noise
+    narrower than the cells of every three-option grid of the schedule."""
+    if not model.sigma2 > 0.0:
+        return (f"the model has no noise (sigma2={model.sigma2:g}), and the chain needs "
+                "sigma2 > 0 to vouch for its answer (nothing else smooths its rounding of "
+                "each step)")
+    S = np.asarray(model.S, dtype=np.float64)
+    s0 = float(np.sum(model.P0))
+    if not sum_is_constant(S, s0):
+        try:
+            chain_sum_bounds(S, theta, s0)
+        except UnboundedSum as exc:
+            return str(exc)
+    if model.n_options == 3:
+        return narrow_everywhere(model, theta, resolution or KAPPA)
+    return ""
 
 
 def _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method):

@@ -25,6 +25,7 @@ the drift per step is constant, ``d = M[0, 0] - M[1, 0]``.
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import warnings
@@ -510,6 +511,34 @@ def test_unstable_summed_preference_is_refused(options, phi2):
         threshold_probabilities(model, 20.0)
 
 
+@pytest.mark.parametrize("S", [
+    # upper triangular: eigenvalues 0.96 (stable), column sums 0.96, 0.96, 1.01
+    [[0.96, 0.0, 0.05], [0.0, 0.96, 0.0], [0.0, 0.0, 0.96]],
+    # two options: eigenvalues 0.97 and 0.9, column sums 1.02 and 0.9
+    [[0.97, 0.0], [0.05, 0.9]],
+])
+def test_a_stable_feedback_whose_worst_case_sum_is_unbounded_is_simulated(S):
+    # A column sum of S above 1 lets the chain's worst case of the summed preference (every
+    # preference at theta but one) fall without bound, so no finite grid holds the states,
+    # though the process is stable. The default falls back to simulation, within its stated
+    # error of an independent simulation; fallback="raise" says why, naming the column sums.
+    S = np.array(S)
+    n = S.shape[0]
+    M = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]][:n]
+    model = MDFTModel.from_matrices(M, [0.5, 0.5], S=S, sigma2=1.0)
+    assert np.abs(np.linalg.eigvals(S)).max() < 1.0 and S.sum(axis=0).max() > 1.0
+    res = threshold_probabilities(model, 8.0, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation"
+    assert res.error_probabilities <= 0.004 and res.error_mean_rt <= 0.01
+    assert_within_stated_error(res, model, 8.0, 200_000, 12)
+    sums = re.escape(str(np.round(S.sum(axis=0), 6).tolist()))
+    with pytest.raises(ValueError, match=rf"column sum of S above 1 \(column sums {sums}\) "
+                                         r"that worst case falls without bound.*spectral radius "
+                                         r"of S is 0\.\d+: the process itself is stable.*"
+                                         r"fallback='simulation'"):
+        threshold_probabilities(model, 8.0, fallback="raise")
+
+
 def test_bad_fallback_is_a_clear_error():
     model = canonical(SETS["compromise"])
     with pytest.raises(ValueError, match=r"fallback must be one of \('simulation', 'raise'\) "
@@ -695,10 +724,16 @@ def test_four_options_are_simulated_to_the_tolerances_or_refused_when_asked():
         threshold_probabilities(model, 6.0, method="solve")
 
 
-def test_noise_free_model_points_to_simulation():
+def test_noise_free_model_is_simulated_or_points_to_simulation():
+    # with attention switching only, nothing smooths the chain's rounding of each step: the
+    # default simulates (within its stated error of an independent simulation), and
+    # fallback="raise" says why and points to mdft.simulate
     model = plain([[1, 0], [0, 1]], [0.6, 0.4], sigma2=0.0)
+    res = threshold_probabilities(model, 4.5, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation"
+    assert_within_stated_error(res, model, 4.5, 200_000, 14)
     with pytest.raises(ValueError, match=r"no noise \(sigma2=0\).*mdft.simulate"):
-        threshold_probabilities(model, 4.5)
+        threshold_probabilities(model, 4.5, fallback="raise")
 
 
 def test_bad_model():
