@@ -59,6 +59,10 @@ def _basis(model):
     return np.ascontiguousarray(E)
 
 
+class TooManyStates(ValueError):
+    """The resolution asked for more states than the budget allows."""
+
+
 class UnboundedSum(ValueError):
     """The chain's worst-case range of the summed preference holds no finite grid."""
 
@@ -123,6 +127,26 @@ def chain_sum_bounds(S, theta, s0):
     return s_lo, s_hi
 
 
+def _settled_sum(model):
+    """The summed preference of the mean path's fixed point, ``1^T (I - S)^-1 C M w`` (where
+    the sum of walks that have not decided settles; 0 when ``I - S`` is singular)."""
+    drive = np.asarray(model.C) @ np.asarray(model.M) @ np.asarray(model.w)
+    try:
+        return float(np.linalg.solve(np.eye(model.n_options) - model.S, drive).sum())
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def _edges_on(edge, half_width, h):
+    """Cell edges covering ``[-half_width, half_width]``, about ``h`` apart, with ``-edge``
+    and ``edge`` among them."""
+    inner = max(1, int(round(2.0 * edge / h)))
+    step = 2.0 * edge / inner
+    first = -edge - math.ceil((half_width - edge) / step - 1e-9) * step
+    count = int(math.ceil((half_width - first) / step - 1e-9))
+    return first + step * np.arange(count + 1)
+
+
 def pair_parameters(cov, sd_opt):
     """``pair_sd[i, k]``: sd of ``P_k - P_i``; ``pair_rho[i, k]``: its correlation with ``P_i``."""
     n = cov.shape[0]
@@ -147,7 +171,12 @@ def sum_is_constant(S, s0):
 
 
 def build_chain(model, theta, n_cells, variance_correction):
-    """The lattice chain of a two-option model with ``n_cells`` cells per ``theta``."""
+    """The lattice chain of a two-option model with ``n_cells`` cells per ``theta``.
+
+    Where the summed preference moves (levels), two options get cell edges on the
+    thresholds of the sum where the walks settle (:func:`_settled_sum`); otherwise the edges
+    lie on the thresholds of the lowest level.
+    """
     n = model.n_options
     S = np.ascontiguousarray(model.S, dtype=np.float64)
     C = np.asarray(model.C)
@@ -177,11 +206,16 @@ def build_chain(model, theta, n_cells, variance_correction):
         m = max(1, int(math.ceil((hi - lo) / h - 1e-9)))
         edges.append(np.linspace(lo, hi, m + 1))
     edges1, edges2 = edges
+    if n == 2 and n_levels > 1:
+        settled = min(max(_settled_sum(model), s_lo), s_hi)
+        edge = math.sqrt(2.0) * (theta - settled / n)
+        if edge >= h:
+            edges1 = _edges_on(edge, math.sqrt(2.0) * R, h)
     n_box = (edges1.size - 1) * (edges2.size - 1) * n_levels
     if n_box > 4 * MAX_STATES:
-        raise ValueError(
-            f"n_cells={n_cells} gives about {n_box // 2} lattice states (limit "
-            f"{MAX_STATES}); use a smaller n_cells"
+        raise TooManyStates(
+            f"n_cells={n_cells} gives about {n_box // 2} lattice states (the lattice's limit "
+            f"is {MAX_STATES})"
         )
     c1 = 0.5 * (edges1[1:] + edges1[:-1])
     c2 = 0.5 * (edges2[1:] + edges2[:-1])
@@ -195,9 +229,9 @@ def build_chain(model, theta, n_cells, variance_correction):
     mask = top[None, :, :] + lower[:, None, None] / n < theta
     n_states = int(mask.sum())
     if n_states > MAX_STATES:
-        raise ValueError(
-            f"n_cells={n_cells} gives {n_states} lattice states (limit {MAX_STATES}); "
-            "use a smaller n_cells"
+        raise TooManyStates(
+            f"n_cells={n_cells} gives {n_states} lattice states (the lattice's limit is "
+            f"{MAX_STATES})"
         )
     if n_states == 0:
         raise ValueError(f"n_cells={n_cells} leaves no lattice cell below theta; raise n_cells")

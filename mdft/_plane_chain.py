@@ -19,7 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _plane_moment
-from ._lattice_chain import chain_sum_bounds, pair_parameters, sum_is_constant
+from ._lattice_chain import (TooManyStates, chain_sum_bounds, pair_parameters,
+                             sum_is_constant)
 from ._plane_krylov import krylov_tail
 
 logger = logging.getLogger(__name__)
@@ -67,10 +68,6 @@ _KRYLOV_PARTS_MIN_NONZEROS = 1_000_000
 # _PILOT_RUNAWAY the pass stops, with the occupation of the chunks before.
 _PILOT_CHUNK = 25
 _PILOT_RUNAWAY = 1.0
-
-
-class TooManyStates(ValueError):
-    """The resolution asked for more states than the budget allows."""
 
 
 def narrow_axes(g):

@@ -178,6 +178,51 @@ def test_random_binary_models_agree_with_simulation(seed):
     assert_matches_simulation(res, model, theta, 50_000, seed)
 
 
+# a two-option model whose summed preference moves (P0 sums to -3.9 and decays by 0.974 per
+# step) and which decides by rare excursions: 40 % undecided after 10,000 steps
+DRIFTING_SUM = dict(M=[[2.74829, 1.22471, 1.42913], [1.21077, 1.80356, 1.71555]],
+                    w=[0.309942, 0.565592, 0.124466], phi1=0.0927564, phi2=0.0187506,
+                    beta=4.304894, sigma2=0.358692, P0=[-2.997064, -0.914327])
+
+
+def test_binary_lattice_with_a_moving_sum_does_not_depend_on_where_the_thresholds_fall():
+    # With levels of the sum, the lattice's cells had edges on the thresholds of the lowest
+    # level only, and where the walks settle (sum 0) a threshold fell anywhere within a cell:
+    # n_cells 56, 60, 80 and 90 gave 0.6031, 0.5837, 0.5975 and 0.5931 for option 0, and 40
+    # and 80 agreed, so the call answered 0.5975 with an estimate of 8e-4 (10^6 simulated
+    # trials: 0.5918, se 0.0005). The edges now lie on the thresholds of the settled sum.
+    model = MDFTModel(**DRIFTING_SUM)
+    assert np.ptp(model.S.sum(axis=0)) < 1e-12 and abs(sum(DRIFTING_SUM["P0"])) > 3
+    answers = [threshold_probabilities(model, 35.5567, n_cells=cells, atol=0.5, rt_rtol=0.5)
+               for cells in (56, 60, 80, 90)]
+    assert all(res.n_levels > 1 for res in answers)
+    p = np.array([res.probabilities[0] for res in answers])
+    assert np.ptp(p) < 3e-4, p
+    assert abs(p.mean() - 0.5918) < 0.0025, p
+
+
+def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = MDFTModel([[1.0, 3.0], [3.0, 1.2]], [0.55, 0.45], phi1=0.03, phi2=0.05,
+                          beta=5.0, sigma2=1.0, P0=[-4.0, -2.0])
+    res = threshold_probabilities(model, 10.0)
+    assert res.engine == "lattice" and res.n_levels > 1
+    assert_within_stated_error(res, model, 10.0, 200_000, 15)
+
+
+def test_a_lattice_over_its_state_limit_falls_back_or_refuses():
+    # levels of a moving sum times 2,000 cells: far over the lattice's limit, which the
+    # default fallback answers by simulation and fallback="raise" names
+    model = MDFTModel([[1.0, 3.0], [3.0, 1.2]], [0.55, 0.45], phi1=0.03, phi2=0.05, beta=5.0,
+                      sigma2=1.0, P0=[-4.0, -2.0])
+    res = threshold_probabilities(model, 10.0, n_cells=2000, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation"
+    with pytest.raises(ValueError, match=r"n_cells=\d+ gives about \d+ lattice states \(the "
+                                         r"lattice's limit is 300000\)"):
+        threshold_probabilities(model, 10.0, n_cells=2000, fallback="raise")
+
+
 def test_small_noise_compromise_is_not_degenerate():
     # an earlier lattice returned p = [1, 0, 0] and a mean time of 1 step here
     # (theta = 17.5 there; 6 here keeps the test fast, the noise is as small)
