@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ._lattice import _GL_W, _GL_X, joint_upper, upper
-from ._numba import njit, njit_inline
+from ._numba import njit
 
 _SQRT2 = math.sqrt(2.0)
 # A window reaches this many component standard deviations around its mean.

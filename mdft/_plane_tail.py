@@ -15,8 +15,6 @@ change to its error estimate (``docs/threshold_exact.md``, section 5).
 
 from __future__ import annotations
 
-import numpy as np
-
 from ._numba import njit
 
 # Window (steps) over which the drift of the hazard and the shares is measured first.
