@@ -94,8 +94,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     model : MDFTModel
         The model. The chain needs two or three options, ``sigma2 > 0`` and a
         contrast ``C`` whose columns sum to zero (the standard one does);
-        more options, no noise, and a feedback matrix with a column sum above 1
-        are simulated (``fallback="simulation"``).
+        more options, no noise, another contrast and a feedback matrix with a
+        column sum above 1 are simulated (``fallback="simulation"``).
     theta : float
         Threshold, > 0: option ``i`` is chosen at the first step where
         ``P_i >= theta``; if several preferences reach it at the same step,
@@ -145,8 +145,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     fallback : {"simulation", "raise"}, default "simulation"
         What to do when the chain cannot meet ``atol`` and ``rt_rtol`` within
         ``max_states``, or no chain can answer for the model (more than three
-        options, no noise, or a feedback matrix whose worst case of the summed
-        preference has no finite range) (``method="propagate"`` only): ``"simulation"``
+        options, no noise, a contrast whose columns do not sum to zero, or a
+        feedback matrix whose worst case of the summed preference has no finite
+        range) (``method="propagate"`` only): ``"simulation"``
         simulates trials in growing batches until three standard errors of
         every probability are within ``atol`` and of every mean response time
         within ``rt_rtol`` (``engine="simulation"``; the error fields are those
@@ -170,11 +171,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     Raises
     ------
     ValueError
-        Bad arguments; a model with more than three options, without noise, or
-        with a feedback matrix under which the chain's worst case of the summed
-        preference is not bounded (a column sum of ``S`` above 1), unless the
-        fallback simulates it; a contrast whose columns do not sum to
-        zero; an initial preference at or above ``theta``; a feedback matrix
+        Bad arguments; a model with more than three options, without noise,
+        with a contrast whose columns do not sum to zero, or with a feedback
+        matrix under which the chain's worst case of the summed preference is
+        not bounded (a column sum of ``S`` above 1), unless the fallback
+        simulates it; an initial preference at or above ``theta``; a feedback matrix
         under which the summed preference is unstable (equal
         column sums of magnitude above 1, as with ``phi2 > 2 / n_options`` and
         ``phi1 = 0``); a model for which
@@ -288,13 +289,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             f"model has {n} options; the chain handles at most {_MAX_OPTIONS} (its state "
             "space grows with every option); with fallback='simulation' and "
             "method='propagate' (the defaults) the answer is simulated to the tolerances"
-        )
-    C = np.asarray(model.C)
-    col = np.abs(C.sum(axis=0)).max()
-    if col > 1e-9 * max(1.0, np.abs(C).max()):
-        raise ValueError(
-            f"the contrast C must have columns summing to zero (largest column sum {col:.3g}); "
-            "the method relies on valences that leave the summed preference unchanged"
         )
     bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
     if bounded is not None:
@@ -449,12 +443,19 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
 
 def _no_chain(model, theta, resolution):
     """Why no chain can answer for the model, known before building any, or "": no noise;
-    a summed preference whose worst case has no finite range below ``n * theta``; noise
-    narrower than the cells of every three-option grid of the schedule."""
+    a contrast whose columns do not sum to zero; a summed preference whose worst case has
+    no finite range below ``n * theta``; noise narrower than the cells of every
+    three-option grid of the schedule."""
     if not model.sigma2 > 0.0:
         return (f"the model has no noise (sigma2={model.sigma2:g}), and the chain needs "
                 "sigma2 > 0 to vouch for its answer (nothing else smooths its rounding of "
                 "each step)")
+    C = np.asarray(model.C)
+    col = np.abs(C.sum(axis=0)).max()
+    if col > 1e-9 * max(1.0, np.abs(C).max()):
+        return (f"the chain needs a contrast C with columns summing to zero (largest column "
+                f"sum {col:.3g}): it relies on valences that leave the summed preference "
+                "unchanged")
     S = np.asarray(model.S, dtype=np.float64)
     s0 = float(np.sum(model.P0))
     if not sum_is_constant(S, s0):

@@ -781,13 +781,23 @@ def test_noise_free_model_is_simulated_or_points_to_simulation():
         threshold_probabilities(model, 4.5, fallback="raise")
 
 
+def test_a_contrast_whose_columns_do_not_sum_to_zero_is_simulated_or_named():
+    # the chain relies on valences that leave the summed preference unchanged; simulation
+    # does not, so the default fallback answers and fallback="raise" says why
+    C = np.array([[1.0, 0.0], [0.0, 1.0]])
+    model = MDFTModel.from_matrices([[1.0, 0.2], [0.0, 0.9]], [0.5, 0.5], S=0.9 * np.eye(2),
+                                    C=C)
+    res = threshold_probabilities(model, 5.0, atol=0.004, rt_rtol=0.01)
+    assert res.engine == "simulation"
+    assert_within_stated_error(res, model, 5.0, 200_000, 16)
+    with pytest.raises(ValueError, match=r"contrast C with columns summing to zero \(largest "
+                                         r"column sum 1\)"):
+        threshold_probabilities(model, 5.0, fallback="raise")
+
+
 def test_bad_model():
     with pytest.raises(TypeError, match="model must be an MDFTModel"):
         threshold_probabilities({"M": [[1, 2]]}, 5.0)
-    C = np.array([[1.0, 0.0], [0.0, 1.0]])
-    model = MDFTModel.from_matrices([[1.0], [0.0]], [1.0], S=0.9 * np.eye(2), C=C)
-    with pytest.raises(ValueError, match="columns summing to zero"):
-        threshold_probabilities(model, 5.0)
     started = canonical([A, B]).replace(P0=[6.0, -6.0])
     with pytest.raises(ValueError, match="P0 must lie below theta"):
         threshold_probabilities(started, 5.0)
