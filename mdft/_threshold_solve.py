@@ -79,6 +79,10 @@ def krylov(A, rhs, tol, max_iter):
     return y, info == 0 and bool(np.all(np.isfinite(y))), counter[0]
 
 
+#: The long run's choice probabilities must sum to one (and none be negative) within this.
+LONG_RUN_SUM_TOL = 1e-6
+
+
 def _solve(chain, tol, max_iter, common):
     n_states = chain.Q.shape[0]
     b = np.zeros(n_states)
@@ -102,6 +106,16 @@ def _solve(chain, tol, max_iter, common):
             )
     R = chain.R
     probs = chain.start_absorbed + R.T @ y
+    total = float(probs.sum())
+    if not (abs(total - 1.0) <= LONG_RUN_SUM_TOL and probs.min() >= -LONG_RUN_SUM_TOL):
+        # every walk decides in the long run, so the choices sum to one: a solution that does
+        # not is the rounding of a system too close to singular (walks that almost never decide)
+        raise ValueError(
+            f"the long run cannot be solved for this model: the choice probabilities of the "
+            f"solved chain sum to {total:.6g} and range down to {probs.min():.3g}, so the walks "
+            "almost never decide and the linear system is too close to singular; use "
+            "method='propagate' with a step limit (max_steps)"
+        )
     weighted = chain.start_absorbed + R.T @ (y + y2)
     return ThresholdProbabilities(
         probabilities=probs, p_undecided=0.0, rt_pmf=None,

@@ -795,6 +795,20 @@ def test_a_contrast_whose_columns_do_not_sum_to_zero_is_simulated_or_named():
         threshold_probabilities(model, 5.0, fallback="raise")
 
 
+def test_a_long_run_too_close_to_singular_is_refused_clearly():
+    # walks that almost never reach theta = 49.4 (none within 200,000 simulated steps): the
+    # long run's linear system is solved to rounding, and its choices summed to 0.67 (the
+    # call then refused on a change of 130 "in the probabilities" between two lattices)
+    model = MDFTModel([[3.5918, 0.5899], [1.5744, 1.8035]], [0.52477, 0.47523], phi1=0.061762,
+                      phi2=0.096302, beta=5.827, sigma2=1.60872)
+    with pytest.raises(ValueError, match=r"the long run cannot be solved for this model: the "
+                                         r"choice probabilities of the solved chain sum to "
+                                         r"0\.\d+.*method='propagate'"):
+        threshold_probabilities(model, 49.44, method="solve")
+    res = threshold_probabilities(model, 10.0, method="solve")
+    assert res.probabilities.sum() == pytest.approx(1.0, abs=1e-9)
+
+
 def test_bad_model():
     with pytest.raises(TypeError, match="model must be an MDFTModel"):
         threshold_probabilities({"M": [[1, 2]]}, 5.0)
