@@ -110,9 +110,9 @@ def _solve(chain, tol, max_iter, common):
     # every walk decides in the long run, so the choices sum to one: what they miss (the
     # rounding of a system near singular, where walks almost never decide, and any mass the
     # lattice's rows lose, summed over a long deliberation) is an error of this answer
-    missing = abs(float(probs.sum()) - 1.0) + float(np.clip(-probs, 0.0, None).sum())
+    total = float(probs.sum())
+    missing = abs(total - 1.0) + float(np.clip(-probs, 0.0, None).sum())
     if missing > LONG_RUN_SUM_TOL:
-        total = float(probs.sum())
         raise ValueError(
             f"the long run cannot be solved for this model: the choice probabilities of the "
             f"solved chain sum to {total:.6g} and range down to {probs.min():.3g}, so the walks "

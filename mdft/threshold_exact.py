@@ -277,19 +277,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             "phi2 (mdft.simulate runs such a model, but its choices then follow the rounding)"
         )
 
-    if n > _MAX_OPTIONS:
-        bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
-        if bounded is not None:
-            return bounded
-        if fallback == "simulation" and method == "propagate":
-            reason = f"no chain for {n} options (at most {_MAX_OPTIONS})"
-            logger.info("threshold_probabilities: %s; simulating", reason)
-            return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason)
-        raise ValueError(
-            f"model has {n} options; the chain handles at most {_MAX_OPTIONS} (its state "
-            "space grows with every option); with fallback='simulation' and "
-            "method='propagate' (the defaults) the answer is simulated to the tolerances"
-        )
     bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
     if bounded is not None:
         return bounded
@@ -442,10 +429,13 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
 
 
 def _no_chain(model, theta, resolution):
-    """Why no chain can answer for the model, known before building any, or "": no noise;
-    a contrast whose columns do not sum to zero; a summed preference whose worst case has
-    no finite range below ``n * theta``; noise narrower than the cells of every
-    three-option grid of the schedule."""
+    """Why no chain can answer for the model, known before building any, or "": more than
+    three options; no noise; a contrast whose columns do not sum to zero; a summed
+    preference whose worst case has no finite range below ``n * theta``; noise narrower
+    than the cells of every three-option grid of the schedule."""
+    if model.n_options > _MAX_OPTIONS:
+        return (f"the model has {model.n_options} options; the chain handles at most "
+                f"{_MAX_OPTIONS} (its state space grows with every option)")
     if not model.sigma2 > 0.0:
         return (f"the model has no noise (sigma2={model.sigma2:g}), and the chain needs "
                 "sigma2 > 0 to vouch for its answer (nothing else smooths its rounding of "

@@ -201,11 +201,13 @@ def test_binary_lattice_with_a_moving_sum_does_not_depend_on_where_the_threshold
     assert abs(p.mean() - 0.5918) < 0.0025, p
 
 
-def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        model = MDFTModel([[1.0, 3.0], [3.0, 1.2]], [0.55, 0.45], phi1=0.03, phi2=0.05,
+# a shorter deliberation whose sum moves (P0 sums to -6)
+SHORT_DRIFTING_SUM = dict(M=[[1.0, 3.0], [3.0, 1.2]], w=[0.55, 0.45], phi1=0.03, phi2=0.05,
                           beta=5.0, sigma2=1.0, P0=[-4.0, -2.0])
+
+
+def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
+    model = MDFTModel(**SHORT_DRIFTING_SUM)
     res = threshold_probabilities(model, 10.0)
     assert res.engine == "lattice" and res.n_levels > 1
     assert_within_stated_error(res, model, 10.0, 200_000, 15)
@@ -214,8 +216,7 @@ def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
 def test_a_lattice_over_its_state_limit_falls_back_or_refuses():
     # levels of a moving sum times 2,000 cells: far over the lattice's limit, which the
     # default fallback answers by simulation and fallback="raise" names
-    model = MDFTModel([[1.0, 3.0], [3.0, 1.2]], [0.55, 0.45], phi1=0.03, phi2=0.05, beta=5.0,
-                      sigma2=1.0, P0=[-4.0, -2.0])
+    model = MDFTModel(**SHORT_DRIFTING_SUM)
     res = threshold_probabilities(model, 10.0, n_cells=2000, atol=0.004, rt_rtol=0.01)
     assert res.engine == "simulation"
     with pytest.raises(ValueError, match=r"n_cells=\d+ gives about \d+ lattice states \(the "
