@@ -54,8 +54,9 @@ _PART_WORK_CELLS = 12_000_000
 # Room for a source's cells in the build's first block (widened as it meets wider sources).
 _FIRST_SLOT = 256
 # A pass first tries the Krylov tail (mdft._plane_krylov) after this many steps, then after
-# every doubling of them, with Krylov spaces of at most these dimensions in turn (a try
-# that fails costs them; in between, the geometric tail goes on being checked).
+# every doubling of them, with Krylov spaces capped at these dimensions in turn (grown past
+# the cap only where that is predicted to cost less than the steps to the next try; a try
+# that fails costs its dimensions; in between, the geometric tail goes on being checked).
 _KRYLOV_FIRST = 250
 _KRYLOV_DIMS = (60, 100, 120)
 _KRYLOV_PARTS_MIN_NONZEROS = 1_000_000
@@ -368,7 +369,8 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
         # running the parts saves below _KRYLOV_PARTS_MIN_NONZEROS
         tail = krylov_tail(chain, x, m, pause, rt_pmf, budget, floor,
                            in_parts and chain.cols.shape[0] >= _KRYLOV_PARTS_MIN_NONZEROS,
-                           _KRYLOV_DIMS[min(tries, len(_KRYLOV_DIMS) - 1)])
+                           _KRYLOV_DIMS[min(tries, len(_KRYLOV_DIMS) - 1)],
+                           min(2 * pause, max_steps) - pause)
         if tail is not None:
             mass, occupation, lost, (err_p, err_rt), dim = tail
             occ[:, :2] += occupation

@@ -10,14 +10,17 @@ every later step (choices, undecided mass, occupation) at the cost of ``d x d`` 
 
 The dimensions of :data:`_DIMS` (up to a cap) are tried in turn until the estimated error is within the
 budget: the larger of what may leave the space (the Arnoldi residual, weighted by the last
-Krylov coefficients) and the change from the dimension tried before. Otherwise the tail is
-not filled (None) and the chain goes on step by step. ``docs/threshold_exact.md``,
-section 5.
+Krylov coefficients) and the change from the dimension tried before. Past the cap, the
+space grows on only while the fall of the estimate over the last two dimensions predicts an
+answer at a cost below that of the steps to the next try (:func:`_worth_growing`).
+Otherwise the tail is not filled (None) and the chain goes on step by step.
+``docs/threshold_exact.md``, section 5.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
@@ -26,8 +29,9 @@ from ._plane_moment import PARTS, apply_step, krylov_powers
 
 logger = logging.getLogger(__name__)
 
-# Dimensions of the Krylov space tried in turn (each answer compared with the last).
-_DIMS = (20, 30, 40, 60, 80, 100, 120)
+# Dimensions of the Krylov space tried in turn (each answer compared with the last); those
+# past a try's cap only where _worth_growing says so.
+_DIMS = (20, 30, 40, 60, 80, 100, 120, 140, 160, 200)
 
 
 # made on the first tail (it scans the loaded libraries once)
@@ -69,6 +73,7 @@ class _Arnoldi:
         self.scale = float(max(1.0, np.max(np.abs(chain.sref)) + 1.0)) if n else 1.0
         self.V = np.zeros((max_dim + 1, 2 * n))
         self.H = np.zeros((max_dim + 1, max_dim))
+        self.n_vec = 2 * n
         v = np.concatenate([x, m / self.scale])
         self.beta = float(np.linalg.norm(v))
         self.V[0] = v / self.beta if self.beta > 0.0 else v
@@ -91,6 +96,12 @@ class _Arnoldi:
     def grow(self, dim):
         """Extend the basis to ``dim`` vectors (fewer if the space closes: it is then
         invariant and every later step is exact)."""
+        if dim >= self.V.shape[0]:  # room for the basis past the first cap
+            V = np.zeros((dim + 1, self.V.shape[1]))
+            V[:self.V.shape[0]] = self.V
+            H = np.zeros((dim + 1, dim))
+            H[:self.H.shape[0], :self.H.shape[1]] = self.H
+            self.V, self.H = V, H
         V, H = self.V, self.H
         for j in range(self.dim, dim):
             if self.broke:
@@ -161,16 +172,40 @@ def _rt_change(p, w, p0, w0, floor):
     return change
 
 
-def krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim=_DIMS[-1]):
+def _worth_growing(last, now, dim, wait, nonzeros, n_vec):
+    """Whether a Krylov space past its try's cap should grow on to ``dim``.
+
+    ``last`` and ``now`` are the last two dimensions tried with their estimated errors over
+    the budget (the larger of the two ratios). Where the estimate falls, it is taken to go
+    on falling geometrically at that rate, which is cautious: on the long deliberations of
+    the benchmark's draws it fell faster and faster with the dimension. The space grows on
+    if that reaches the budget within :data:`_DIMS` at a cost below that of the ``wait``
+    steps of the chain to the next try: a step of the chain per dimension (``nonzeros``
+    units) and Gram-Schmidt's products with the basis (``n_vec`` units per vector), which
+    take about as long per unit on this machine as the chain's scatter."""
+    (d0, g0), (d1, g1) = last, now
+    if wait <= 0 or not 1.0 < g1 < g0:
+        return False
+    need = max(d1 + math.log(g1) * (d1 - d0) / math.log(g0 / g1), dim)
+    if need > _DIMS[-1]:
+        return False
+    cost = (need - d1) * nonzeros + 0.5 * n_vec * (need * need - d1 * d1)
+    return cost <= wait * nonzeros
+
+
+def krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim=_DIMS[-1],
+                wait=0):
     """:func:`_krylov_tail` with BLAS on one thread."""
     with _blas_on_one_thread():
-        return _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim)
+        return _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim,
+                            wait)
 
 
-def _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim):
+def _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim, wait):
     """Fill ``rt_pmf[start:]`` from the distribution ``(x, m)`` after ``start`` steps, if
     the Krylov tail's estimated error is within ``budget = (atol, rtol)`` at a dimension
-    of :data:`_DIMS` up to ``max_dim``.
+    of :data:`_DIMS` up to ``max_dim``, or past it where :func:`_worth_growing` says so
+    (``wait``: the steps of the chain before its next try; 0: none past ``max_dim``).
 
     The error estimate is the larger of two: the change from the dimension tried before,
     and what the Arnoldi residual may add (``h_{d+1,d} |v_{d+1}|_1`` times the summed last
@@ -191,6 +226,8 @@ def _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim):
     on_x, on_m = _outputs(chain)
     dims = [d for d in _DIMS if d <= max_dim]
     arnoldi = _Arnoldi(chain, x, m, in_parts, min(dims[-1], n_rows))
+    dims += [d for d in _DIMS if d > max_dim]
+    tried = []  # (dimension, estimated error over the budget)
     if arnoldi.beta == 0.0:
         return None
     # the rows stop once the Krylov coefficients' norm is below ``negligible``: what is left
@@ -201,6 +238,9 @@ def _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim):
     negligible = left / np.sqrt(2.0 * max(chain.n_states, 1))
     previous = None
     for dim in dims:
+        if dim > max_dim and not _worth_growing(tried[-2], tried[-1], dim, wait,
+                                                chain.cols.shape[0], arnoldi.n_vec):
+            return None
         arnoldi.grow(min(dim, n_rows))
         d = arnoldi.dim
         rows, coef = arnoldi.steps(d, n_rows, on_x, on_m, negligible)
@@ -231,6 +271,7 @@ def _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim):
         if arnoldi.broke or d < dim:
             return None
         previous = (p, w)
+        tried.append((d, max(err_p / budget[0], err_rt / budget[1])))
     return None
 
 

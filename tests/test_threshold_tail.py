@@ -77,6 +77,28 @@ def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
     assert geometric[2] > 6 * krylov[2]
 
 
+def test_a_krylov_space_grows_past_its_cap_only_where_that_predicts_an_answer_cheaply():
+    """Past a try's cap the space grows on only while the estimate falls, is predicted
+    (geometrically, from the last two dimensions) to reach the budget within the largest
+    dimension, and getting there costs less than the steps of the chain to the next try."""
+    from mdft._plane_krylov import _DIMS, _worth_growing
+
+    nonzeros, n_vec = 400_000, 12_000
+    # falling tenfold per 20 dimensions from 100 times the budget: 40 more dimensions, which
+    # cost 40 steps of the chain and Gram-Schmidt's products, against 250 steps
+    assert _worth_growing((40, 1e3), (60, 1e2), 80, 250, nonzeros, n_vec)
+    # the same fall, but the next try comes after 20 steps: cheaper to wait
+    assert not _worth_growing((40, 1e3), (60, 1e2), 80, 20, nonzeros, n_vec)
+    # no next try to compare with
+    assert not _worth_growing((40, 1e3), (60, 1e2), 80, 0, nonzeros, n_vec)
+    # not falling, or falling too slowly to reach the budget within the largest dimension
+    assert not _worth_growing((40, 1e2), (60, 1e2), 80, 250, nonzeros, n_vec)
+    assert not _worth_growing((40, 1.5e2), (60, 1e2), 80, 10_000, nonzeros, n_vec)
+    assert _DIMS[-1] < 60 + 20 * np.log(1e2) / np.log(1.5)
+    # a wide basis on a sparse chain: Gram-Schmidt's products dominate
+    assert not _worth_growing((40, 1e3), (60, 1e2), 80, 250, 20_000, n_vec)
+
+
 def test_krylov_start_follows_the_schedule_of_tries():
     """A finer pass's first Krylov try is where the coarser pass filled a Krylov tail (a
     point of the schedule: the first, doubled), the point after the try that failed
@@ -96,12 +118,42 @@ def test_krylov_start_follows_the_schedule_of_tries():
         assert krylov_start(krylov_start(tail)) == krylov_start(tail)
 
 
+def _long_deliberation():
+    """Seed 3 of the test draws, second model (theta 39.7)."""
+    rng = np.random.default_rng(3)
+    random_model(rng, 3)
+    return random_model(rng, 3)
+
+
+def test_a_krylov_space_grown_past_its_cap_fills_the_tail_at_the_first_try(monkeypatch):
+    """The long deliberation of the test below on a coarse grid: at its first try the
+    estimate falls from dimension 40 to 60 fast enough that growing the space on is worth
+    it, and the tail is filled there, within its own estimate (against every step
+    propagated) and with fewer steps of the chain than at the second try, where it is
+    filled when every space stops at its cap."""
+    from mdft import _plane_krylov
+    from mdft._plane_chain import _KRYLOV_DIMS, _KRYLOV_FIRST, build_moment_chain
+
+    model, theta = _long_deliberation()
+    ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+    chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
+    budget = (1e-5, 3e-5)
+    _, grown = tail_against_full(chain, 6000, budget=budget)
+    assert grown[3] == _KRYLOV_FIRST
+    assert grown[2] - grown[3] > _KRYLOV_DIMS[0]  # a space past the first try's cap
+    monkeypatch.setattr(_plane_krylov, "_worth_growing", lambda *args: False)
+    _, capped = tail_against_full(chain, 6000, budget=budget)
+    assert capped[3] == 2 * _KRYLOV_FIRST
+    assert grown[2] < capped[2]
+
+
 def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_grid(monkeypatch):
     """A random long deliberation (seed 3 of the test draws, theta 39.7) whose coarse pass
-    fills its Krylov tail only at the second try: the finer pass that starts there gives
+    fills its Krylov tail only at the second try when its spaces stop at their caps (the
+    growth past a cap of the test below left out): the finer pass that starts there gives
     the very answer of the finer pass that tries from the first point on (its first try
     fails as well), without the failed try's work."""
-    from mdft import _plane_chain
+    from mdft import _plane_chain, _plane_krylov
     from mdft._plane_chain import (_KRYLOV_FIRST, build_moment_chain, krylov_start,
                                    propagate_moments)
 
@@ -109,9 +161,8 @@ def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_gri
     tail = _plane_chain.krylov_tail
     monkeypatch.setattr(_plane_chain, "krylov_tail",
                         lambda *args: tries.append(args[3]) or tail(*args))
-    rng = np.random.default_rng(3)
-    random_model(rng, 3)
-    model, theta = random_model(rng, 3)
+    monkeypatch.setattr(_plane_krylov, "_worth_growing", lambda *args: False)
+    model, theta = _long_deliberation()
     ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
     budget = (1e-5, 3e-5)
     coarse = propagate_moments(build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000), 6000,
