@@ -66,9 +66,9 @@ _KRYLOV_PARTS_MIN_NONZEROS = 1_000_000
 # their sizes exceeds 1. A pilot's crude reference sums make that common and passing (up to
 # 0.15 on 40 random models, falling back within a few hundred steps); a closure that runs
 # away grows it geometrically, past 1e3 by step 1,000. From the first chunk where it exceeds
-# _PILOT_RUNAWAY the pass stops, with the occupation of the chunks before.
+# PILOT_RUNAWAY the pass stops, with the occupation of the chunks before.
 _PILOT_CHUNK = 25
-_PILOT_RUNAWAY = 1.0
+PILOT_RUNAWAY = 1.0
 
 
 def narrow_axes(g):
@@ -275,7 +275,7 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     probability summed over the steps; ``second`` also carries the second moment of the
     sum and its occupation (``occupation[:, 1:]``, a pilot pass, which fills no Krylov
     tail, and stops at the first of its chunks of ``_PILOT_CHUNK`` steps where the sizes of
-    the choices and of the undecided mass sum to more than ``1 + _PILOT_RUNAWAY``: the
+    the choices and of the undecided mass sum to more than ``1 + PILOT_RUNAWAY``: the
     occupation is then that of the chunks before, and ``steps`` their number of steps).
     ``escaped``: the mass that reached frontier states and left the chain
     (:func:`build_moment_chain`'s ``near``). ``floor``: mean response times of options
@@ -348,7 +348,7 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
         dropped += errors[0]  # with the geometric tail's change, if it was filled
         if second:
             balance = float(np.abs(rt_pmf[:steps]).sum() + np.abs(x).sum() + escaped) - 1.0
-            if not balance <= _PILOT_RUNAWAY:
+            if not balance <= PILOT_RUNAWAY:
                 kept_steps = t_first if t_first > 1 else 0  # the chunks before this one
                 logger.debug("pilot pass: the sizes of the choices and of the undecided mass "
                              "sum to 1 %+.2g after %d steps; the occupation of the first %d "

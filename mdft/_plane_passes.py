@@ -12,9 +12,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ._plane_chain import (TooManyStates, build_moment_chain, mean_sums, narrow_axes,
-                           near_occupied, pilot_pass, plane_geometry, propagate_moments,
-                           reference_sums, solve_moments)
+from ._plane_chain import (PILOT_RUNAWAY, TooManyStates, build_moment_chain, mean_sums,
+                           narrow_axes, near_occupied, pilot_pass, plane_geometry,
+                           propagate_moments, reference_sums, solve_moments)
 from ._threshold_fallback import RT_WEIGHT_FLOOR
 from ._threshold_solve import error_estimate, krylov, mean_rt
 from .threshold_result import ThresholdProbabilities
@@ -214,8 +214,15 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         change = (math.inf, math.inf)
         times = np.arange(1, solve["max_steps"] + 1, dtype=np.float64)
         for _ in range(REFITS):
-            chain, out, cut = fitting_pass(k, solve["max_steps"], solve["tol"])
-            if cut:
+            # a pass that counts, with every row (the Krylov tail too: a refit needs the
+            # occupation of x and m only, not the second moment that pilots carry)
+            chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
+                                       max_states)
+            out = propagate_moments(chain, solve["max_steps"], solve["tol"], budget,
+                                    floor=RT_WEIGHT_FLOOR)
+            # a closure that runs away: the choices and undecided mass turned negative by
+            # as much as a pilot is cut for (their sizes summing to 1 + PILOT_RUNAWAY)
+            if not out[5][2] <= 0.5 * PILOT_RUNAWAY:
                 raise TooManyStates(
                     f"at resolution {k:.3g} the moment closure of the summed preference is "
                     "unstable for this model: it runs away even with the reference sums fitted "

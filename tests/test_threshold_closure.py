@@ -44,7 +44,7 @@ def test_a_pilot_whose_closure_runs_away_keeps_the_steps_before(monkeypatch):
     np.testing.assert_allclose(occ, alone[4], rtol=1e-12, atol=1e-300)
     # unguarded, the pass goes on to the step limit and its answer is no distribution: its
     # negative choices (clipped, and counted) outweigh the whole
-    monkeypatch.setattr(_plane_chain, "_PILOT_RUNAWAY", np.inf)
+    monkeypatch.setattr(_plane_chain, "PILOT_RUNAWAY", np.inf)
     occ_all, steps_all, cut_all = pilot_occupation(chain, 1000, 1e-6, (1e-5, 3e-5))
     assert not cut_all and steps_all == 1000
     wild = propagate_moments(chain, 1000, 1e-6, (1e-5, 3e-5), second=True)
@@ -134,6 +134,36 @@ def test_reference_sums_refitted_after_a_cut_pilot_are_checked():
     res = threshold_probabilities(model, 31.51853929122604, fallback="raise")
     np.testing.assert_allclose(res.probabilities, [0.00826, 0.99174, 0.0], atol=0.001)
     np.testing.assert_allclose(res.mean_response_times[:2], [143.6, 217.2], rtol=0.005)
+
+
+def test_refits_after_a_cut_pilot_fill_their_tails_like_any_pass(monkeypatch):
+    """Seed 7171 model 21 of the benchmark's draws: a deliberation of 2,600-2,700 steps on
+    average whose pilot is cut at step 800. The passes that refit its reference sums used
+    to be pilot passes, without the Krylov tail, and ran 8,000 steps each (2.9 s of a
+    call of 8.6 s); they only need the occupation of x and m, and now fill their tails as
+    every counted pass does. No pass runs past 1,000 steps, and the answer stays within
+    the tolerances of 10**6 simulated trials (p = 0.05148 and 0.93969, se 0.00024; mean
+    times 2639.1 and 2706.0 steps)."""
+    from mdft import _plane_passes
+
+    steps = []
+    for name in ("pilot_pass", "propagate_moments"):
+        def record(*args, _f=getattr(_plane_passes, name), **kwargs):
+            out = _f(*args, **kwargs)
+            steps.append((out[0] if isinstance(out[1], bool) else out)[2])
+            return out
+        monkeypatch.setattr(_plane_passes, name, record)
+    model = drawn([[3.1537035226359675, 0.8808545856311994],
+                   [2.7730410568133492, 1.2444840756777709],
+                   [1.5987715902904598, 0.7755564342573016]],
+                  [0.5054147206128466, 0.4945852793871533], phi1=0.010331027841670047,
+                  phi2=0.049353808973166956, beta=8.95287011945652, sigma2=0.31547276941694447)
+    res = threshold_probabilities(model, 50.717586548304915, fallback="raise")
+    assert steps and max(steps) <= 1000
+    np.testing.assert_allclose(res.probabilities, [0.051478, 0.939687, 0.0],
+                               atol=res.error_probabilities + 4 * 0.00024)
+    np.testing.assert_allclose(res.mean_response_times[:2], [2639.13, 2705.96],
+                               rtol=res.error_mean_rt + 0.002)
 
 
 @pytest.mark.parametrize("in_parts", [False, True])
