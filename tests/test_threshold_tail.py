@@ -150,7 +150,7 @@ def test_a_krylov_space_grown_past_its_cap_fills_the_tail_at_the_first_try(monke
 def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_grid(monkeypatch):
     """A random long deliberation (seed 3 of the test draws, theta 39.7) whose coarse pass
     fills its Krylov tail only at the second try when its spaces stop at their caps (the
-    growth past a cap of the test below left out): the finer pass that starts there gives
+    growth past a cap of the test above left out): the finer pass that starts there gives
     the very answer of the finer pass that tries from the first point on (its first try
     fails as well), without the failed try's work."""
     from mdft import _plane_chain, _plane_krylov
