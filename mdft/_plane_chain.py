@@ -57,8 +57,12 @@ _FIRST_SLOT = 256
 # every doubling of them, with Krylov spaces capped at these dimensions in turn (grown past
 # the cap only where that is predicted to cost less than the steps to the next try; a try
 # that fails costs its dimensions; in between, the geometric tail goes on being checked).
+# Where the pilots say the walks settle late (``early``), the first try comes after
+# _KRYLOV_EARLY steps; the caps count from there (_KRYLOV_DIMS[0] for a try at
+# _KRYLOV_EARLY, _KRYLOV_DIMS[1] at _KRYLOV_FIRST, and so on).
 _KRYLOV_FIRST = 250
-_KRYLOV_DIMS = (60, 100, 120)
+_KRYLOV_EARLY = 125
+_KRYLOV_DIMS = (40, 60, 100, 120)
 _KRYLOV_PARTS_MIN_NONZEROS = 1_000_000
 # A pilot pass (``second``) checks every _PILOT_CHUNK steps that its moment closure is not
 # running away: the signed sum of the choices so far and of the undecided mass is 1 by
@@ -263,7 +267,8 @@ def pilot_pass(chain, max_steps, tol, budget=(0.0, 0.0), floor=0.01):
 
 
 def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, floor=0.01,
-                      in_parts=None, krylov=True, krylov_from=None, escape_max=math.inf):
+                      in_parts=None, krylov=True, krylov_from=None, escape_max=math.inf,
+                      early=False):
     """Run the moment chain; ``(rt_pmf, p_undecided, steps, tail_start, occupation,
     tail_errors, escaped)``.
 
@@ -286,15 +291,17 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     added in another order). ``krylov``: try the Krylov tail after ``_KRYLOV_FIRST`` steps,
     and after every doubling of them, until it is within the budget; ``krylov_from``: the
     step where a coarser pass of the same model filled its tail (None: none did), whose
-    failed tries are left out (:func:`krylov_start`). ``escape_max``: once more mass than
+    failed tries are left out (:func:`krylov_start`); ``early``: the first try comes after
+    ``_KRYLOV_EARLY`` steps instead (where a coarser pass filled no tail or one before
+    that). ``escape_max``: once more mass than
     this has reached frontier states the run stops there, its answer incomplete (``escaped``
     above ``escape_max`` says so; the caller builds the pass again with every row).
     """
     return _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
-                      krylov_from, escape_max)[0]
+                      krylov_from, escape_max, early)[0]
 
 
-def krylov_start(tail_start):
+def krylov_start(tail_start, early=False):
     """The first step at which a finer pass tries the Krylov tail, given where a coarser
     pass of the same model filled its tail (``tail_start``; None: it filled none), so that
     the finer pass leaves out the tries that failed on the coarser grid: a tail filled at a
@@ -302,8 +309,9 @@ def krylov_start(tail_start):
     finer pass tries first there; a tail filled between two points is a geometric one,
     after the try at the first of them failed, and the finer pass tries first at the
     second. A finer grid's walks settle no earlier (on seed 8383 of the benchmark's draws,
-    the tries that failed took 7 % of the time of all calls, 15-17 % of the slowest)."""
-    first = _KRYLOV_FIRST
+    the tries that failed took 7 % of the time of all calls, 15-17 % of the slowest).
+    ``early``: the schedule starts at ``_KRYLOV_EARLY`` instead of ``_KRYLOV_FIRST``."""
+    first = _KRYLOV_EARLY if early else _KRYLOV_FIRST
     while tail_start is not None and 2 * first <= tail_start:
         first *= 2
     if tail_start is not None and tail_start > first:
@@ -312,7 +320,7 @@ def krylov_start(tail_start):
 
 
 def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
-               krylov_from=None, escape_max=math.inf):
+               krylov_from=None, escape_max=math.inf, early=False):
     """:func:`propagate_moments`'s answer, and whether a pilot pass was cut short."""
     n = chain.n_states
     x = np.zeros(n)
@@ -326,9 +334,9 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
     if in_parts is None:
         in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     use_krylov = krylov and not second and budget[0] > 0.0
-    pause = min(krylov_start(krylov_from), max_steps) if use_krylov else max_steps
+    pause = min(krylov_start(krylov_from, early), max_steps) if use_krylov else max_steps
     # the tries left out count as made: the dimensions go on from there
-    tries = (pause // _KRYLOV_FIRST).bit_length() - 1 if use_krylov else 0
+    tries = (pause // _KRYLOV_EARLY).bit_length() - 1 if use_krylov else 0
     if second:
         pause = min(_PILOT_CHUNK, max_steps)
         kept = occ.copy()

@@ -195,8 +195,10 @@ def _worth_growing(last, now, dim, wait, nonzeros, n_vec):
 
 def krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim=_DIMS[-1],
                 wait=0):
-    """:func:`_krylov_tail` with BLAS on one thread."""
-    with _blas_on_one_thread():
+    """:func:`_krylov_tail` with BLAS on one thread. A space whose products overflow (a
+    moment closure that runs away) gives rows that are not finite, and no tail: numpy's
+    warnings on the way there are not the caller's business."""
+    with _blas_on_one_thread(), np.errstate(over="ignore", invalid="ignore"):
         return _krylov_tail(chain, x, m, start, rt_pmf, budget, floor, in_parts, max_dim,
                             wait)
 

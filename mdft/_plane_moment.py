@@ -918,6 +918,11 @@ def krylov_powers(H, beta, n, negligible):
     first whose norm is below ``negligible`` (the rest are zero); returns the rows and how
     many were computed."""
     d = H.shape[0]
+    # H by columns: the product is taken a column at a time (H c = sum_j c_j H[:, j]), each
+    # an independent update of every row, which vectorises; a row at a time it would be a
+    # sum into one number, which without reordering cannot (3-4 times slower at d = 60-200;
+    # the terms of each row are added in the same order either way)
+    cols = np.ascontiguousarray(H.T)
     out = np.zeros((n, d))
     c = np.zeros(d)
     nxt = np.zeros(d)
@@ -929,12 +934,14 @@ def krylov_powers(H, beta, n, negligible):
             norm += c[i] * c[i]
         if math.sqrt(norm) < negligible:
             return out, k + 1
-        # H is upper Hessenberg: row i starts at column i - 1
         for i in range(d):
-            v = 0.0
-            for j in range(max(i - 1, 0), d):
-                v += H[i, j] * c[j]
-            nxt[i] = v
+            nxt[i] = 0.0
+        for j in range(d):
+            cj = c[j]
+            col = cols[j]
+            # H is upper Hessenberg: column j ends at row j + 1
+            for i in range(min(j + 2, d)):
+                nxt[i] += col[i] * cj
         for i in range(d):
             c[i] = nxt[i]
     return out, n

@@ -51,6 +51,11 @@ TAIL_SHARE = 0.01
 # "propagate": a pass whose mass reaching states without rows (left out as
 # never occupied by the coarser pass) exceeds this is built again with every row.
 ESCAPE_MAX = 1e-10
+# The passes that count try the Krylov tail early (mdft._plane_chain.propagate_moments's
+# ``early``) where the last pilot ran at least this many steps before its geometric tail
+# could be filled: their walks settle late, and a try at the usual first step would find
+# more than it needs.
+EARLY_KRYLOV_PILOT_STEPS = 250
 
 
 def narrow_everywhere(model, theta, kappa):
@@ -98,7 +103,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     kappas = [kappa * REFINE] + [kappa / HALF_STEP**j for j in range(2 * MAX_REFINEMENTS + 1)]
     halves = [False] + [j % 2 == 1 for j in range(2 * MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=PILOT_DELTA,
-                 near=None, krylov_from=None)
+                 near=None, krylov_from=None, early=False)
     # the occupied region of each pass limits the rows of the next, finer one ("propagate":
     # the solver of the long run has no step limit, so every reachable state may matter)
     limit = solve["method"] == "propagate"
@@ -134,6 +139,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         if limit:
             # a cut pilot's occupation stops short of where the walks go: every row
             state["near"] = None if cut else near_occupied(chain, occ)
+        # walks that settle late on the pilots' grid settle late on finer ones
+        state["early"] = not cut and steps >= EARLY_KRYLOV_PILOT_STEPS
 
     def ask_cheaper(chain, out):
         # the passes ahead at the least: the first that counts with its two probes (where the
@@ -155,7 +162,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 out = propagate_moments(chain, steps, solve["tol"], budget,
                                         floor=RT_WEIGHT_FLOOR,
                                         krylov_from=state["krylov_from"],
-                                        escape_max=math.inf if near is None else ESCAPE_MAX)
+                                        escape_max=math.inf if near is None else ESCAPE_MAX,
+                                        early=state["early"])
                 if near is None or out[6] <= ESCAPE_MAX:
                     break
                 # the coarser pass did not foresee where the mass goes: every row after all

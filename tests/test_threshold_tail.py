@@ -59,6 +59,26 @@ def test_krylov_tail_stays_within_its_own_estimate(seed):
     assert used >= 1  # each seed's four models include at least one long deliberation
 
 
+def test_an_early_krylov_tail_stays_within_its_own_estimate():
+    """The models of the test above with the schedule started early (``early``, given to
+    the passes of a model whose pilots settle late): a tail filled from the less settled
+    distribution after _KRYLOV_EARLY steps changed the answer by no more than its estimate,
+    against every step propagated."""
+    from mdft._plane_chain import _KRYLOV_EARLY, build_moment_chain
+
+    budget = (1e-5, 3e-5)
+    early = 0
+    for seed in (2, 3, 5, 7):
+        rng = np.random.default_rng(seed)
+        for _ in range(4):
+            model, theta = random_model(rng, 3)
+            ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+            chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
+            _, tail = tail_against_full(chain, 6000, budget=budget, early=True)
+            early += tail[3] == _KRYLOV_EARLY
+    assert early >= 8  # most of the 16 (12 when written): the early try is what is tested
+
+
 def test_krylov_tail_of_a_long_deliberation_saves_most_steps():
     """Seed 2026 model 5's slow next mode (section 5 of docs/threshold_exact.md): the Krylov
     tail starts at one of the first pauses and takes at most a hundred-odd steps of the
@@ -118,6 +138,25 @@ def test_krylov_start_follows_the_schedule_of_tries():
         assert krylov_start(krylov_start(tail)) == krylov_start(tail)
 
 
+def test_an_early_krylov_schedule_differs_only_before_the_usual_first_try():
+    """With ``early`` the schedule starts at _KRYLOV_EARLY (half the usual first step):
+    without a coarser tail, or after one filled before the usual first try, the first try
+    comes earlier; after a tail filled later, where it would without ``early``. A try's
+    cap depends only on its step."""
+    from mdft._plane_chain import _KRYLOV_DIMS, _KRYLOV_EARLY, _KRYLOV_FIRST, krylov_start
+
+    early = _KRYLOV_EARLY
+    assert _KRYLOV_FIRST == 2 * early  # the usual schedule is the early one's second point on
+    assert krylov_start(None, True) == krylov_start(0, True) == krylov_start(early - 1, True)
+    assert krylov_start(None, True) == krylov_start(early, True) == early
+    # a tail filled between the two first points was geometric after a failed early try
+    assert krylov_start(early + 1, True) == krylov_start(_KRYLOV_FIRST, True) == _KRYLOV_FIRST
+    for tail in (_KRYLOV_FIRST, _KRYLOV_FIRST + 1, 3 * _KRYLOV_FIRST, 9 * _KRYLOV_FIRST):
+        assert krylov_start(tail, True) == krylov_start(tail)
+        assert krylov_start(krylov_start(tail, True), True) == krylov_start(tail, True)
+    assert len(_KRYLOV_DIMS) >= 3 and list(_KRYLOV_DIMS) == sorted(_KRYLOV_DIMS)
+
+
 def _long_deliberation():
     """Seed 3 of the test draws, second model (theta 39.7)."""
     rng = np.random.default_rng(3)
@@ -140,7 +179,7 @@ def test_a_krylov_space_grown_past_its_cap_fills_the_tail_at_the_first_try(monke
     budget = (1e-5, 3e-5)
     _, grown = tail_against_full(chain, 6000, budget=budget)
     assert grown[3] == _KRYLOV_FIRST
-    assert grown[2] - grown[3] > _KRYLOV_DIMS[0]  # a space past the first try's cap
+    assert grown[2] - grown[3] > _KRYLOV_DIMS[1]  # past the cap of the try at _KRYLOV_FIRST
     monkeypatch.setattr(_plane_krylov, "_worth_growing", lambda *args: False)
     _, capped = tail_against_full(chain, 6000, budget=budget)
     assert capped[3] == 2 * _KRYLOV_FIRST
@@ -178,6 +217,45 @@ def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_gri
     assert later[3] == every_try[3] == 2 * _KRYLOV_FIRST
     np.testing.assert_array_equal(later[0], every_try[0])
     assert later[1] == every_try[1]
+
+
+def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monkeypatch):
+    """``threshold_probabilities`` starts its passes' Krylov schedule early where the last
+    pilot ran at least EARLY_KRYLOV_PILOT_STEPS steps (a random model of seed 2 of the test
+    draws, theta 58.1), and not where it settled sooner (the similarity set at a low
+    threshold); the long one's
+    answer is that of the usual schedule within the tails' budgets, which its estimate
+    includes, and its last pass fills the tail at the early try."""
+    from mdft._plane_chain import _KRYLOV_EARLY
+
+    seen = []
+    propagate = _plane_passes.propagate_moments
+    monkeypatch.setattr(_plane_passes, "propagate_moments",
+                        lambda *args, **kw: seen.append(kw.get("early")) or propagate(*args, **kw))
+    rng = np.random.default_rng(2)
+    for _ in range(4):
+        model, theta = random_model(rng, 3)
+    early = threshold_probabilities(model, theta, fallback="raise")
+    assert seen and all(seen)
+    assert early.tail_start == _KRYLOV_EARLY
+    seen.clear()
+    monkeypatch.setattr(_plane_passes, "EARLY_KRYLOV_PILOT_STEPS", 10**9)
+    usual = threshold_probabilities(model, theta, fallback="raise")
+    assert seen and not any(seen)
+    assert usual.resolution == early.resolution
+    share = _plane_passes.TAIL_SHARE
+    np.testing.assert_allclose(early.probabilities, usual.probabilities, atol=2 * share * 1e-3)
+    # mean times weighed as in the error estimate (an option chosen with p = 1e-22 here
+    # has no mean time to speak of)
+    weight = np.minimum(1.0, usual.probabilities / 0.01)
+    change = weight * np.abs(early.mean_response_times / usual.mean_response_times - 1.0)
+    assert change.max() <= 2 * share * 3e-3
+    monkeypatch.undo()
+    seen.clear()
+    monkeypatch.setattr(_plane_passes, "propagate_moments",
+                        lambda *args, **kw: seen.append(kw.get("early")) or propagate(*args, **kw))
+    threshold_probabilities(canonical(SETS["similarity"]), 8.0, fallback="raise")
+    assert seen and not any(seen)
 
 
 def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
@@ -218,7 +296,7 @@ def test_krylov_powers_match_matrix_powers():
     assert n == 8 and np.all(out[8:] == 0.0) and out[7, 0] == pytest.approx(1e-7)
 
 
-def tail_against_full(chain, steps, budget=(5e-5, 1.5e-4), krylov=True):
+def tail_against_full(chain, steps, budget=(5e-5, 1.5e-4), krylov=True, early=False):
     """Propagate ``chain`` for ``steps`` with and without the tail; assert that filling the
     tail changed the answer by no more than the change it reported (within ``budget``).
     The full run's own error (the mass of the states it left out as holding less than
@@ -228,7 +306,7 @@ def tail_against_full(chain, steps, budget=(5e-5, 1.5e-4), krylov=True):
     # every step (no stop at a small undecided mass: where the moment closure lets x change
     # sign, the mass can pass below it while the walks still choose)
     full = propagate_moments(chain, steps, -np.inf)
-    tail = propagate_moments(chain, steps, 1e-14, budget, krylov=krylov)
+    tail = propagate_moments(chain, steps, 1e-14, budget, krylov=krylov, early=early)
     times = np.arange(1, steps + 1)
     if full[5][2] > 1e-3:
         # an unstable moment closure (docs/threshold_exact.md, section 8): no distribution,
