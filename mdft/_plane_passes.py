@@ -227,7 +227,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
                                        max_states)
             out = propagate_moments(chain, solve["max_steps"], solve["tol"], budget,
-                                    floor=RT_WEIGHT_FLOOR)
+                                    floor=RT_WEIGHT_FLOOR, early=state["early"])
             # a closure that runs away: the choices and undecided mass turned negative by
             # as much as a pilot is cut for (their sizes summing to 1 + PILOT_RUNAWAY)
             if not out[5][2] <= 0.5 * PILOT_RUNAWAY:
