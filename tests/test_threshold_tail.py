@@ -38,20 +38,28 @@ def test_extrapolated_tail_stays_within_its_own_estimate(seed):
     tail_against_full(chain, 1500, krylov=False)
 
 
+def _coarse_chains(seed, n=4):
+    """The moment chains (resolution 2, the pilots' first reference sum and spread) of the
+    first ``n`` random three-option models of the test draws of ``seed``."""
+    from mdft._plane_chain import build_moment_chain
+
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        model, theta = random_model(rng, 3)
+        ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
+        yield build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
+
+
 @pytest.mark.parametrize("seed", [2, 3, 5, 7])
 def test_krylov_tail_stays_within_its_own_estimate(seed):
     """Random three-option models across the documented range (sigma2 0.1-4, theta 5-60)
     on a coarse grid, 6,000 steps: where the Krylov tail was filled, it changed the answer
     by no more than its estimate."""
-    from mdft._plane_chain import _KRYLOV_FIRST, build_moment_chain, propagate_moments
+    from mdft._plane_chain import _KRYLOV_FIRST, propagate_moments
 
-    rng = np.random.default_rng(seed)
     budget = (1e-5, 3e-5)
     used = 0
-    for _ in range(4):
-        model, theta = random_model(rng, 3)
-        ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-        chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
+    for chain in _coarse_chains(seed):
         if propagate_moments(chain, 6000, 1e-14, budget)[3] < _KRYLOV_FIRST:
             continue  # decided, or a geometric tail (the test above)
         full, tail = tail_against_full(chain, 6000, budget=budget)
@@ -64,16 +72,12 @@ def test_an_early_krylov_tail_stays_within_its_own_estimate():
     the passes of a model whose pilots settle late): a tail filled from the less settled
     distribution after _KRYLOV_EARLY steps changed the answer by no more than its estimate,
     against every step propagated."""
-    from mdft._plane_chain import _KRYLOV_EARLY, build_moment_chain
+    from mdft._plane_chain import _KRYLOV_EARLY
 
     budget = (1e-5, 3e-5)
     early = 0
     for seed in (2, 3, 5, 7):
-        rng = np.random.default_rng(seed)
-        for _ in range(4):
-            model, theta = random_model(rng, 3)
-            ref = np.array([float(np.sum(model.P0)), 0.0, 0.0])
-            chain = build_moment_chain(model, theta, 2.0, ref, 0.5, 60_000)
+        for chain in _coarse_chains(seed):
             _, tail = tail_against_full(chain, 6000, budget=budget, early=True)
             early += tail[3] == _KRYLOV_EARLY
     assert early >= 8  # most of the 16 (12 when written): the early try is what is tested
@@ -223,15 +227,16 @@ def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monk
     """``threshold_probabilities`` starts its passes' Krylov schedule early where the last
     pilot ran at least EARLY_KRYLOV_PILOT_STEPS steps (a random model of seed 2 of the test
     draws, theta 58.1), and not where it settled sooner (the similarity set at a low
-    threshold); the long one's
-    answer is that of the usual schedule within the tails' budgets, which its estimate
-    includes, and its last pass fills the tail at the early try."""
+    threshold); the long one's answer is that of the usual schedule within the tails'
+    budgets, which its estimate includes, and its last pass fills the tail at the early
+    try."""
     from mdft._plane_chain import _KRYLOV_EARLY
 
     seen = []
     propagate = _plane_passes.propagate_moments
     monkeypatch.setattr(_plane_passes, "propagate_moments",
                         lambda *args, **kw: seen.append(kw.get("early")) or propagate(*args, **kw))
+    steps = _plane_passes.EARLY_KRYLOV_PILOT_STEPS
     rng = np.random.default_rng(2)
     for _ in range(4):
         model, theta = random_model(rng, 3)
@@ -250,10 +255,8 @@ def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monk
     weight = np.minimum(1.0, usual.probabilities / 0.01)
     change = weight * np.abs(early.mean_response_times / usual.mean_response_times - 1.0)
     assert change.max() <= 2 * share * 3e-3
-    monkeypatch.undo()
+    monkeypatch.setattr(_plane_passes, "EARLY_KRYLOV_PILOT_STEPS", steps)
     seen.clear()
-    monkeypatch.setattr(_plane_passes, "propagate_moments",
-                        lambda *args, **kw: seen.append(kw.get("early")) or propagate(*args, **kw))
     threshold_probabilities(canonical(SETS["similarity"]), 8.0, fallback="raise")
     assert seen and not any(seen)
 
