@@ -45,12 +45,9 @@ _TWO_M53 = 2.0**-53
 
 
 @njit_inline
-def next_u64(state):
-    """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
-    s0 = state[0]
-    s1 = state[1]
-    s2 = state[2]
-    s3 = state[3]
+def xoshiro(s0, s1, s2, s3):
+    """One step of xoshiro256++ on the four words of a stream held in local variables:
+    ``(bits, s0, s1, s2, s3)``, 64 random bits and the words after the step."""
     t = s0 + s3
     result = ((t << _ROT23_L) | (t >> _ROT23_R)) + s0
     t = s1 << _SH17
@@ -60,6 +57,13 @@ def next_u64(state):
     s0 ^= s3
     s2 ^= t
     s3 = (s3 << _ROT45_L) | (s3 >> _ROT45_R)
+    return result, s0, s1, s2, s3
+
+
+@njit_inline
+def next_u64(state):
+    """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
+    result, s0, s1, s2, s3 = xoshiro(state[0], state[1], state[2], state[3])
     state[0] = s0
     state[1] = s1
     state[2] = s2
@@ -68,9 +72,15 @@ def next_u64(state):
 
 
 @njit_inline
+def _uniform(bits):
+    """A uniform double in [0, 1) from the top 53 of 64 random bits."""
+    return np.float64(bits >> _SH11) * _TWO_M53
+
+
+@njit_inline
 def next_double(state):
     """A uniform double in [0, 1) with 53 random bits."""
-    return np.float64(next_u64(state) >> _SH11) * _TWO_M53
+    return _uniform(next_u64(state))
 
 
 # ---------------------------------------------------------------- ziggurat
@@ -96,8 +106,9 @@ _ZR = 3.6541528853610088
 
 
 @njit_inline
-def standard_normal(state):
-    """A standard normal deviate from the stream ``state`` (ziggurat method).
+def normal_words(s0, s1, s2, s3):
+    """A standard normal deviate (ziggurat method) from the stream's words held in local
+    variables: ``(z, s0, s1, s2, s3)``.
 
     The first 64-bit word gives the layer (bits 0-7), the sign (bit 8) and a
     53-bit uniform (bits 11-63); about 99% of the calls use that word only.
@@ -105,32 +116,47 @@ def standard_normal(state):
     # A rejection sampler: each pass accepts with probability > 0.98, so the
     # bound on the number of passes is never reached in practice.
     for _ in range(1_000_000):
-        u = next_u64(state)
+        u, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
         i = np.intp(u & _LOW8)
         # +1.0 or -1.0, computed without a branch (the sign is unpredictable).
         sign = 1.0 - 2.0 * np.float64((u >> _SH8) & _BIT)
-        z = np.float64(u >> _SH11) * _TWO_M53 * _ZX[i]
+        z = _uniform(u) * _ZX[i]
         if z < _ZX[i + 1]:
-            return sign * z
+            return sign * z, s0, s1, s2, s3
         if i == 0:
             # Tail beyond r (Marsaglia 1964): exponential proposals, accepted
             # with probability exp(-a**2 / 2).
             for _ in range(1_000_000):
-                a = -math.log(1.0 - next_double(state)) / _ZR
-                b = -math.log(1.0 - next_double(state))
+                u, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
+                a = -math.log(1.0 - _uniform(u)) / _ZR
+                u, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
+                b = -math.log(1.0 - _uniform(u))
                 if b + b > a * a:
-                    return sign * (_ZR + a)
+                    return sign * (_ZR + a), s0, s1, s2, s3
         else:
-            y = _ZF[i] + next_double(state) * (_ZF[i + 1] - _ZF[i])
+            u, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
+            y = _ZF[i] + _uniform(u) * (_ZF[i + 1] - _ZF[i])
             if y < math.exp(-0.5 * z * z):
-                return sign * z
-    return 0.0
+                return sign * z, s0, s1, s2, s3
+    return 0.0, s0, s1, s2, s3
+
+
+@njit_inline
+def standard_normal(state):
+    """A standard normal deviate from the stream ``state`` (:func:`normal_words`)."""
+    z, s0, s1, s2, s3 = normal_words(state[0], state[1], state[2], state[3])
+    state[0] = s0
+    state[1] = s1
+    state[2] = s2
+    state[3] = s3
+    return z
 
 
 # ---------------------------------------------------------------- small helpers
 @njit_inline
-def draw_attribute(state, cuts):
-    """Index of the attended attribute for one uniform ``u = x 2**-53``.
+def attended(bits, cuts):
+    """Index of the attended attribute for one uniform ``u = x 2**-53``, ``x`` the top 53
+    of the 64 random ``bits``.
 
     ``cuts[q] = ceil(cumw[q] 2**53)`` for the cumulative weights ``cumw``, so
     that ``x >= cuts[q]`` exactly when ``u >= cumw[q]``; the index is the
@@ -138,16 +164,21 @@ def draw_attribute(state, cuts):
     It is counted with integer arithmetic only (``1 + ((x - c) >> 63)`` is 1
     when ``x >= c`` and 0 otherwise): the outcome is random, and a branch or
     a floating-point comparison on it would be mispredicted half of the time.
-    No draw is made for a single attribute.
     """
-    n_attributes = cuts.shape[0]
-    if n_attributes == 1:
-        return 0
-    x = np.int64(next_u64(state) >> _SH11)
+    x = np.int64(bits >> _SH11)
     j = 0
-    for q in range(n_attributes - 1):
+    for q in range(cuts.shape[0] - 1):
         j += 1 + ((x - cuts[q]) >> 63)
     return j
+
+
+@njit_inline
+def draw_attribute(state, cuts):
+    """Index of the attended attribute (:func:`attended`) from the stream ``state``. No draw
+    is made for a single attribute."""
+    if cuts.shape[0] == 1:
+        return 0
+    return attended(next_u64(state), cuts)
 
 
 @njit_inline
@@ -249,8 +280,11 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
 
     The same draws in the same order and the same arithmetic in the same order, so
     the same choices and steps to the bit; about 1.7 times as fast (the generic loops
-    keep the state in memory and cannot be unrolled). With two options the third
-    coordinate is carried as zero and never drawn for, tested or chosen.
+    keep the state in memory and cannot be unrolled). The stream's four words are held
+    in local variables too, and written back to ``state`` before a tie is broken and at
+    the end: in memory, every draw waited on the stores of the one before. With two
+    options the third coordinate is carried as zero and never drawn for, tested or
+    chosen.
     """
     three = P0.shape[0] == 3
     s00, s01, s10, s11 = _corner(S)
@@ -260,17 +294,29 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
         s02, s12, s20, s21, s22 = _third(S)
         c02, c12, c20, c21, c22 = _third(C)
     noisy = noise_sd > 0.0
+    several = cuts.shape[0] > 1
+    w0 = state[0]
+    w1 = state[1]
+    w2 = state[2]
+    w3 = state[3]
     p0 = P0[0]
     p1 = P0[1]
     p2 = P0[2] if three else 0.0
     e0 = e1 = e2 = 0.0
+    decided = False
     for t in range(1, n_steps + 1):
-        j = draw_attribute(state, cuts)
+        j = 0
+        if several:
+            bits, w0, w1, w2, w3 = xoshiro(w0, w1, w2, w3)
+            j = attended(bits, cuts)
         if noisy:
-            e0 = noise_sd * standard_normal(state)
-            e1 = noise_sd * standard_normal(state)
+            e0, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+            e1, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+            e0 = noise_sd * e0
+            e1 = noise_sd * e1
             if three:
-                e2 = noise_sd * standard_normal(state)
+                e2, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+                e2 = noise_sd * e2
         if three:
             q0 = s00 * p0 + s01 * p1 + s02 * p2 + CM[0, j]
             q1 = s10 * p0 + s11 * p1 + s12 * p2 + CM[1, j]
@@ -290,10 +336,14 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
         p1 = q1
         p2 = q2
         if use_threshold and (p0 >= theta or p1 >= theta or (three and p2 >= theta)):
+            decided = True
             break
-    else:
-        if use_threshold:
-            return -1, -1
+    state[0] = w0
+    state[1] = w1
+    state[2] = w2
+    state[3] = w3
+    if use_threshold and not decided:
+        return -1, -1
     P[0] = p0
     P[1] = p1
     if three:

@@ -201,6 +201,28 @@ def test_small_trial_equals_the_generic_kernel_to_the_bit(n_options):
         np.testing.assert_array_equal(fast, slow)
 
 
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_small_trial_breaks_ties_from_where_its_stream_stands(n_options):
+    # the scalar kernel holds the stream's words in local variables and writes them back
+    # before a tie is broken: identical options without noise tie at every deadline, so
+    # each trial draws for its tie after its attention draws, as the generic kernel does
+    model = make_model(np.tile([[1.0, 2.0]], (n_options, 1)), [0.3, 0.7], phi1=0.02,
+                       phi2=0.05, beta=10.0, sigma2=0.0)
+    args = (model.S, model.C @ model.M, model.C, 0.0, _attention_cuts(model.w), model.P0,
+            25, math.inf, False)
+    fast, slow = one_state(7), one_state(7)
+    P = np.empty(n_options)
+    picks = []
+    for _ in range(400):
+        expected = _kernels.plain_trial(slow, *args, P.copy(), P.copy(), P.copy(),
+                                        np.empty((1, n_options)), False)
+        assert _kernels.small_trial(fast, *args, P) == expected
+        picks.append(expected[0])
+    np.testing.assert_array_equal(fast, slow)
+    # every tied option is picked (the tie is a real draw, not a fixed index)
+    assert set(picks) == set(range(n_options))
+
+
 def test_noise_factor_reproduces_the_accumulated_covariance(compromise):
     S, C = compromise.S, compromise.C
     for n_steps in (1, 2, 7, 100):
