@@ -61,13 +61,19 @@ def xoshiro(s0, s1, s2, s3):
 
 
 @njit_inline
-def next_u64(state):
-    """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
-    result, s0, s1, s2, s3 = xoshiro(state[0], state[1], state[2], state[3])
+def store_words(state, s0, s1, s2, s3):
+    """Write a stream's four words, held in local variables, back to ``state``."""
     state[0] = s0
     state[1] = s1
     state[2] = s2
     state[3] = s3
+
+
+@njit_inline
+def next_u64(state):
+    """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
+    result, s0, s1, s2, s3 = xoshiro(state[0], state[1], state[2], state[3])
+    store_words(state, s0, s1, s2, s3)
     return result
 
 
@@ -145,10 +151,7 @@ def normal_words(s0, s1, s2, s3):
 def standard_normal(state):
     """A standard normal deviate from the stream ``state`` (:func:`normal_words`)."""
     z, s0, s1, s2, s3 = normal_words(state[0], state[1], state[2], state[3])
-    state[0] = s0
-    state[1] = s1
-    state[2] = s2
-    state[3] = s3
+    store_words(state, s0, s1, s2, s3)
     return z
 
 
@@ -338,10 +341,7 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
         if use_threshold and (p0 >= theta or p1 >= theta or (three and p2 >= theta)):
             decided = True
             break
-    state[0] = w0
-    state[1] = w1
-    state[2] = w2
-    state[3] = w3
+    store_words(state, w0, w1, w2, w3)
     if use_threshold and not decided:
         return -1, -1
     P[0] = p0
