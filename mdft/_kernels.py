@@ -4,7 +4,11 @@ Nothing here validates its input: :mod:`mdft.simulate` checks and converts
 everything once and then calls these functions. Conventions:
 
 * ``state`` is a ``uint64`` array of length 4, the state of one xoshiro256++
-  stream, advanced in place. ``states`` stacks one such row per chunk.
+  stream, advanced in place. ``states`` stacks one such row per chunk. The
+  helpers :func:`xoshiro` and :func:`normal_words` take the four words and
+  return them advanced, so that a kernel can hold them in local variables
+  for a whole trial (:func:`small_trial`) and write them back with
+  :func:`store_words`.
 * ``cuts`` holds the cumulative attention weights ``cumw`` scaled to
   integers, ``cuts[j] = ceil(cumw[j] 2**53)``; attribute ``j`` is attended
   when ``cumw[j-1] <= u < cumw[j]`` for the uniform ``u`` in [0, 1) of one
