@@ -5,10 +5,10 @@ everything once and then calls these functions. Conventions:
 
 * ``state`` is a ``uint64`` array of length 4, the state of one xoshiro256++
   stream, advanced in place. ``states`` stacks one such row per chunk. The
-  helpers :func:`xoshiro` and :func:`normal_words` take the four words and
-  return them advanced, so that a kernel can hold them in local variables
-  for a whole trial (:func:`small_trial`) and write them back with
-  :func:`store_words`.
+  helpers :func:`xoshiro`, :func:`normal_words` and :func:`attribute_words`
+  take the four words and return them advanced, so that a kernel can hold
+  them in local variables for a whole trial (:func:`small_trial`) and write
+  them back with :func:`store_words`.
 * ``cuts`` holds the cumulative attention weights ``cumw`` scaled to
   integers, ``cuts[j] = ceil(cumw[j] 2**53)``; attribute ``j`` is attended
   when ``cumw[j-1] <= u < cumw[j]`` for the uniform ``u`` in [0, 1) of one
@@ -161,10 +161,11 @@ def standard_normal(state):
 
 # ---------------------------------------------------------------- small helpers
 @njit_inline
-def attended(bits, cuts):
-    """Index of the attended attribute for one uniform ``u = x 2**-53``, ``x`` the top 53
-    of the 64 random ``bits``.
+def attribute_words(s0, s1, s2, s3, cuts):
+    """Index of the attended attribute from the stream's words held in local variables:
+    ``(j, s0, s1, s2, s3)``. No draw is made for a single attribute.
 
+    One draw gives the uniform ``u = x 2**-53``, ``x`` the top 53 of its 64 bits.
     ``cuts[q] = ceil(cumw[q] 2**53)`` for the cumulative weights ``cumw``, so
     that ``x >= cuts[q]`` exactly when ``u >= cumw[q]``; the index is the
     number of such ``q < J - 1``, i.e. the first ``j`` with ``u < cumw[j]``.
@@ -172,20 +173,22 @@ def attended(bits, cuts):
     when ``x >= c`` and 0 otherwise): the outcome is random, and a branch or
     a floating-point comparison on it would be mispredicted half of the time.
     """
+    if cuts.shape[0] == 1:
+        return 0, s0, s1, s2, s3
+    bits, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
     x = np.int64(bits >> _SH11)
     j = 0
     for q in range(cuts.shape[0] - 1):
         j += 1 + ((x - cuts[q]) >> 63)
-    return j
+    return j, s0, s1, s2, s3
 
 
 @njit_inline
 def draw_attribute(state, cuts):
-    """Index of the attended attribute (:func:`attended`) from the stream ``state``. No draw
-    is made for a single attribute."""
-    if cuts.shape[0] == 1:
-        return 0
-    return attended(next_u64(state), cuts)
+    """Index of the attended attribute from the stream ``state`` (:func:`attribute_words`)."""
+    j, s0, s1, s2, s3 = attribute_words(state[0], state[1], state[2], state[3], cuts)
+    store_words(state, s0, s1, s2, s3)
+    return j
 
 
 @njit_inline
@@ -301,7 +304,6 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
         s02, s12, s20, s21, s22 = _third(S)
         c02, c12, c20, c21, c22 = _third(C)
     noisy = noise_sd > 0.0
-    several = cuts.shape[0] > 1
     w0 = state[0]
     w1 = state[1]
     w2 = state[2]
@@ -312,10 +314,7 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     e0 = e1 = e2 = 0.0
     decided = False
     for t in range(1, n_steps + 1):
-        j = 0
-        if several:
-            bits, w0, w1, w2, w3 = xoshiro(w0, w1, w2, w3)
-            j = attended(bits, cuts)
+        j, w0, w1, w2, w3 = attribute_words(w0, w1, w2, w3, cuts)
         if noisy:
             e0, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
             e1, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
