@@ -91,12 +91,12 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     walks of passes at the first resolution that counts, the last change joining
     the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
 
-    ``cheaper(answer, nonzeros, steps)``, when given, is asked after the first pilot (unless
-    it was cut), with its answer (``probabilities``, ``p_undecided``, ``rt_pmf``),
-    the nonzeros that the first pass that counts, its probes and the next pass are expected
-    to build (each refinement by ``REFINE`` four times the nonzeros of the grid before), and
-    the pilot's steps; what it returns other than None (a simulated answer) is the first
-    run's result.
+    ``cheaper(answer, nonzeros, steps)``, when given, is asked after the first pilot, with
+    its answer (``probabilities``, ``p_undecided``, ``rt_pmf``; None where the pilot was
+    cut), the nonzeros that the first pass that counts, its probes and the next pass (and
+    after a cut pilot, two refits) are expected to build (each refinement by ``REFINE`` four
+    times the nonzeros of the grid before), and the pilot's steps; what it returns other
+    than None (a simulated answer) is the first run's result.
     """
     # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
     # odd powers of HALF_STEP)
@@ -131,9 +131,10 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             if steps == 0:
                 break  # nothing to fit: the reference sums and spread stay as they were
             state["ref"], state["delta"] = reference_sums(chain, occ)
-            if i == 0 and cheaper is not None and not cut:
-                # the first pilot's answer tells what simulating would cost
-                state["simulated"] = ask_cheaper(chain, out)
+            if i == 0 and cheaper is not None:
+                # the first pilot's answer tells what simulating would cost (a cut pilot's
+                # does not: the first trials do)
+                state["simulated"] = ask_cheaper(chain, out, cut)
                 if state["simulated"] is not None:
                     return
         if limit:
@@ -142,15 +143,18 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         # walks that settle late on the pilots' grid settle late on finer ones
         state["early"] = not cut and steps >= EARLY_KRYLOV_PILOT_STEPS
 
-    def ask_cheaper(chain, out):
+    def ask_cheaper(chain, out, cut):
         # the passes ahead at the least: the first that counts with its two probes (where the
-        # sum moves), on a grid REFINE finer than the pilots', and the next
-        passes = 3 if state["delta"] > 0.0 else 1
+        # sum moves), on a grid REFINE finer than the pilots', and the next; after a cut
+        # pilot, two refits before them
+        passes = (3 if state["delta"] > 0.0 else 1) + (2 if cut else 0)
         nonzeros = chain.cols.shape[0] * (passes * REFINE**4 + REFINE**8)
-        # (negative choices of the pilot's closure, its error, do not count for a prediction)
-        rt_pmf = np.maximum(out[0], 0.0)
-        answer = SimpleNamespace(probabilities=rt_pmf.sum(axis=0), p_undecided=max(out[1], 0.0),
-                                 rt_pmf=rt_pmf)
+        answer = None  # a cut pilot's answer predicts nothing
+        if not cut:
+            # (negative choices of the pilot's closure, its error, do not count)
+            rt_pmf = np.maximum(out[0], 0.0)
+            answer = SimpleNamespace(probabilities=rt_pmf.sum(axis=0),
+                                     p_undecided=max(out[1], 0.0), rt_pmf=rt_pmf)
         return cheaper(answer, nonzeros, out[2])
 
     def run(k, delta, ref_map=None):

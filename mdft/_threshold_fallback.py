@@ -19,6 +19,10 @@ from .simulate import Threshold, simulate
 
 #: First batch of trials, and the largest number of trials times mean decision steps.
 FIRST_BATCH = 100_000
+#: On a budget (``max_work`` given, the early hand-over of threshold_probabilities), the
+#: first batch is simulated in two parts: the first PROBE_BATCH trials predict the work, and
+#: a prediction over the budget stops the simulation there.
+PROBE_BATCH = 5_000
 MAX_WORK = 2_000_000_000
 #: The fallback refuses without simulating where the chain's last answer predicts more than
 #: this many times MAX_WORK (the prediction is about right; near the budget itself, the first
@@ -99,14 +103,18 @@ def over_budget(reason, trials, per_trial, how=""):
 
 
 def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result,
-                     max_work=None):
+                     max_work=None, probe_work=None):
     """The simulated answer, or :class:`OverBudget` when ``max_work`` trial-steps (at most
-    :data:`MAX_WORK`, the default) cannot meet the tolerances (the first batch is always
-    simulated).
+    :data:`MAX_WORK`, the default) cannot meet the tolerances.
 
-    ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
-    builds the result object; ``reason`` says why the chain refused.
+    Every answer rests on at least :data:`FIRST_BATCH` trials. Without ``max_work`` the
+    first batch is always simulated; with it, its first :data:`PROBE_BATCH` trials predict
+    the work first, which must then be within ``probe_work`` too, when given (the budget of
+    a hand-over that nothing else predicted). ``make_result(probabilities, p_undecided,
+    rt_pmf, mean_rt, n_trials, err_p, err_rt)`` builds the result object; ``reason`` says
+    why the chain refused.
     """
+    budgeted = max_work is not None
     max_work = MAX_WORK if max_work is None else min(max_work, MAX_WORK)
     gen = np.random.default_rng(DEFAULT_SEED if rng is None else rng)
     n_opt = model.n_options
@@ -116,7 +124,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     squares = np.zeros(n_opt)
     hist = np.zeros((max_steps, n_opt))
     work = 0.0
-    batch = FIRST_BATCH
+    batch = min(PROBE_BATCH, FIRST_BATCH) if budgeted else FIRST_BATCH
     stopping = Threshold(theta, max_steps=max_steps)
     while True:
         res = simulate(model, batch, stopping=stopping, rng=gen)
@@ -132,13 +140,19 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
         work += float(steps.sum()) + float(res.n_undecided) * max_steps
         n = int(counts.sum()) + n_undecided
         err_p, err_rt = _errors(counts, n_undecided, sums, squares)
-        if err_p <= atol and err_rt <= rt_rtol:
+        if n >= FIRST_BATCH and err_p <= atol and err_rt <= rt_rtol:
             break
         # trials needed: errors shrink as 1 / sqrt(n)
-        need = n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1
+        need = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1, FIRST_BATCH)
         per_trial = work / n
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
+        if n < FIRST_BATCH:
+            # the probe: the rest of the first batch, where the prediction is within budget
+            if probe_work is not None and need * per_trial > probe_work:
+                raise over_budget(reason, need, per_trial)
+            batch = FIRST_BATCH - n
+            continue
         batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_rt = np.where(counts > 0, sums / np.where(counts > 0, counts, 1), np.nan)

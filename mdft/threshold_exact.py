@@ -504,21 +504,31 @@ def _out_of_reach(grid_errors, spread, tolerances, left):
 
 def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, atol, rt_rtol,
                           rng):
-    """The simulated answer where the first pilot's ``answer`` predicts that simulating to
-    the tolerances costs less than ``_EARLY_SHARE`` of building and running ``nonzeros`` for
-    ``steps`` steps (the chain's passes ahead, at the least); None where it does not, or
-    where the trials turn out to need more than ``_SIM_OVERRUN`` times that work (the chain
-    then goes on)."""
-    sim_work = _simulation_work(answer, max_steps, atol, rt_rtol)
+    """The simulated answer where simulating to the tolerances is predicted to cost less than
+    ``_EARLY_SHARE`` of building and running ``nonzeros`` for ``steps`` steps (the chain's
+    passes ahead, at the least); None where it is not, or where the trials turn out to need
+    more than ``_SIM_OVERRUN`` times that work (the chain then goes on).
+
+    The prediction comes from ``answer``, the first pilot's, or, where that pilot was cut
+    (``answer`` None: its closure ran away, and its answer predicts nothing), from the
+    first trials of the simulation itself."""
     chain_work = nonzeros * (_BUILD_WORK + steps)
-    if not sim_work < _EARLY_SHARE * chain_work:
-        return None
-    reason = (f"the first pilot pass predicts {sim_work:.3g} units of work for simulating to "
-              f"the tolerances, against {chain_work:.3g} for the chain's next passes")
+    probe_work = None
+    if answer is None:
+        probe_work = _EARLY_SHARE * chain_work / _SIM_STEP_WORK
+        reason = (f"the first pilot pass was cut, and its passes ahead would take "
+                  f"{chain_work:.3g} units of work at the least")
+    else:
+        sim_work = _simulation_work(answer, max_steps, atol, rt_rtol)
+        if not sim_work < _EARLY_SHARE * chain_work:
+            return None
+        reason = (f"the first pilot pass predicts {sim_work:.3g} units of work for simulating "
+                  f"to the tolerances, against {chain_work:.3g} for the chain's next passes")
     logger.info("threshold_probabilities: %s; simulating", reason)
     try:
         return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason,
-                          max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK)
+                          max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK,
+                          probe_work=probe_work)
     except OverBudget:
         logger.info("threshold_probabilities: the trials need more than predicted; "
                     "building the chain")
@@ -532,11 +542,12 @@ def _simulation_work(answer, max_steps, atol, rt_rtol):
                                            answer.rt_pmf, atol, rt_rtol)
 
 
-def _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason, max_work=None):
+def _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason, max_work=None,
+               probe_work=None):
     """The simulation fallback's answer as a ThresholdProbabilities (``engine="simulation"``)."""
     return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
                             partial(_simulated_result, theta=theta, max_steps=max_steps),
-                            max_work=max_work)
+                            max_work=max_work, probe_work=probe_work)
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,

@@ -356,12 +356,9 @@ def test_simulates_from_the_start_where_the_first_pilot_predicts_it_costs_less(m
     assert threshold_probabilities(model, 55.5).engine == "plane" and len(built) > 3
 
 
-def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(monkeypatch):
-    # where the trials turn out to need more than _SIM_OVERRUN times the predicted chain
-    # work, the simulation stops after its first batch and the chain goes on from its pilot
+def _counted_trials(monkeypatch):
     from mdft import _threshold_fallback as fb
 
-    model = MDFTModel(**QUICK_TO_SIMULATE)
     trials = []
     simulate = fb.simulate
 
@@ -370,6 +367,16 @@ def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(mon
         return simulate(model, n, **kwargs)
 
     monkeypatch.setattr(fb, "simulate", counted)
+    return trials
+
+
+def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(monkeypatch):
+    # where the trials turn out to need more than _SIM_OVERRUN times the predicted chain
+    # work, the simulation stops after its first batch and the chain goes on from its pilot
+    from mdft import _threshold_fallback as fb
+
+    model = MDFTModel(**QUICK_TO_SIMULATE)
+    trials = _counted_trials(monkeypatch)
     monkeypatch.setattr(fb, "FIRST_BATCH", 1_000)  # too few trials for the tolerances
     monkeypatch.setattr(threshold_exact, "_SIM_OVERRUN", 1e-3)
     built = _count_builds(monkeypatch)
@@ -383,6 +390,73 @@ def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(mon
         assert res.n_iter == sum(trials[1:])
     else:
         assert res.engine == "plane" and trials == [1_000]
+
+
+# seed 9595 model 7 of the benchmark's draws: the first pilot's closure runs away after 125
+# steps; every trial chooses option 3, in 174 steps on average
+CUT_AND_QUICK = dict(M=[[2.7196687488469333, 1.151759138323227],
+                        [3.709689878080767, 2.663116017406429],
+                        [3.6968234920199317, 3.0311920274580832]],
+                     w=[0.3176960180209522, 0.6823039819790477], phi1=0.005248373029023574,
+                     phi2=0.01398695993376537, beta=13.737414153627238,
+                     sigma2=0.24307505086571518)
+CUT_AND_QUICK_THETA = 58.11452636317638
+
+
+def test_a_cut_pilot_hands_over_to_trials_that_cost_less(monkeypatch):
+    # a cut pilot's answer predicts nothing, so the first trials of the simulation predict
+    # its work: within the share of the passes ahead (two refits, the first pass that
+    # counts, its probes and the next), the call simulates after that one chain (it used to
+    # refit and refine for 8.6 s, then refuse by the closure and simulate anyway)
+    from mdft import _threshold_fallback as fb
+
+    model = drawn(**CUT_AND_QUICK)
+    built = _count_builds(monkeypatch)
+    trials = _counted_trials(monkeypatch)
+    res = threshold_probabilities(model, CUT_AND_QUICK_THETA)
+    assert res.engine == "simulation" and len(built) == 1
+    assert trials[:2] == [fb.PROBE_BATCH, fb.FIRST_BATCH - fb.PROBE_BATCH]
+    assert res.n_iter == sum(trials) >= fb.FIRST_BATCH
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    assert_within_stated_error(res, model, CUT_AND_QUICK_THETA, 100_000, 13)
+    # counted as dear, the probe's prediction is over its budget: the chain goes on after
+    # those trials alone (here to max_states, and the fallback of a refusal then simulates
+    # a first batch of its own, whole)
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 1e12)
+    built.clear()
+    trials.clear()
+    res = threshold_probabilities(model, CUT_AND_QUICK_THETA, max_states=12_000)
+    assert res.engine == "simulation" and len(built) > 1
+    assert trials[:2] == [fb.PROBE_BATCH, fb.FIRST_BATCH]
+    assert res.n_iter == sum(trials[1:])
+
+
+def test_a_simulation_on_a_budget_probes_before_its_first_batch(monkeypatch):
+    # the first PROBE_BATCH trials predict the work; over max_work or probe_work nothing more
+    # is simulated; every answer rests on at least FIRST_BATCH trials
+    from mdft import _threshold_fallback as fb
+
+    model = canonical(SETS["compromise"])
+    trials = _counted_trials(monkeypatch)
+
+    def result(*args):
+        return args
+
+    kw = dict(model=model, theta=6.0, max_steps=1_000, atol=0.01, rt_rtol=0.03, rng=1,
+              reason="a test", make_result=result)
+    for budget in (dict(max_work=1.0), dict(max_work=1e12, probe_work=1.0)):
+        trials.clear()
+        with pytest.raises(fb.OverBudget, match="would need about"):
+            fb.simulated_answer(**kw, **budget)
+        assert trials == [fb.PROBE_BATCH]
+    trials.clear()
+    out = fb.simulated_answer(**kw, max_work=1e12, probe_work=1e12)
+    assert trials == [fb.PROBE_BATCH, fb.FIRST_BATCH - fb.PROBE_BATCH]
+    # (loose tolerances: met by the first batch)
+    assert out[4] == fb.FIRST_BATCH and out[5] <= 0.01 and out[6] <= 0.03
+    # unbudgeted, the first batch is simulated whole
+    trials.clear()
+    assert fb.simulated_answer(**kw)[4] == fb.FIRST_BATCH and trials == [fb.FIRST_BATCH]
 
 
 def test_the_first_pilots_prediction_decides_by_count_alone(monkeypatch):
