@@ -145,15 +145,13 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
         # trials needed: errors shrink as 1 / sqrt(n)
         need = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1, FIRST_BATCH)
         per_trial = work / n
-        if need * per_trial > max_work:
+        # the probe's prediction must be within probe_work as well
+        probing = n < FIRST_BATCH and probe_work is not None
+        if need * per_trial > (min(max_work, probe_work) if probing else max_work):
             raise over_budget(reason, need, per_trial)
-        if n < FIRST_BATCH:
-            # the probe: the rest of the first batch, where the prediction is within budget
-            if probe_work is not None and need * per_trial > probe_work:
-                raise over_budget(reason, need, per_trial)
-            batch = FIRST_BATCH - n
-            continue
-        batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
+        # after the probe, the rest of the first batch
+        batch = FIRST_BATCH - n if n < FIRST_BATCH else int(min(max(need - n, FIRST_BATCH),
+                                                                4 * n))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_rt = np.where(counts > 0, sums / np.where(counts > 0, counts, 1), np.nan)
     return make_result(counts / n, n_undecided / n, hist / n, mean_rt, n, err_p, err_rt)
