@@ -13,6 +13,7 @@ per model and then the median and maximum errors and times.
     python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
     python benchmarks/bench_threshold_exact.py --ternary 20 --binary 0 --live --cache /tmp/refs
     python benchmarks/bench_threshold_exact.py --ranges wide --fallback simulation --binary 0
+    python benchmarks/bench_threshold_exact.py --ranges flat --fallback simulation --binary 0
     python benchmarks/bench_threshold_exact.py --ternary 40 --binary 0 --trials 0 --seed 8383
     python benchmarks/bench_threshold_exact.py --canonical --ternary 0 --binary 0 --max-steps 10000
 
@@ -61,15 +62,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import mdft  # noqa: E402
 
 
-RANGES = ("standard", "wide")
+RANGES = ("standard", "wide", "flat")
 
 
 def draw_model(rng, n_options, ranges="standard"):
     """A random model and threshold. ``"standard"``: the ranges of the module docstring;
     ``"wide"``: M uniform on [0, 10], attention Dirichlet(1, ...), phi1 and phi2 uniform on
-    [0, 0.15], beta uniform on [0.5, 25] (sigma2 and theta as in "standard")."""
+    [0, 0.15], beta uniform on [0.5, 25] (sigma2 and theta as in "standard"); ``"flat"``: M
+    uniform on [1, 5], attention Dirichlet(1, ...), phi1 and phi2 uniform on [0.01, 0.1], beta
+    uniform on [1, 15] and sigma2 uniform (not log-uniform) on [0.1, 4] (theta as in
+    "standard"): sigma2 above 1 in 77 % of the draws instead of 38 %."""
     n_attributes = int(rng.integers(2, 4))
-    if ranges == "wide":
+    if ranges == "flat":
+        M = rng.uniform(1.0, 5.0, (n_options, n_attributes))
+        w = rng.dirichlet(np.ones(n_attributes))
+        params = dict(phi1=float(rng.uniform(0.01, 0.1)), phi2=float(rng.uniform(0.01, 0.1)),
+                      beta=float(rng.uniform(1.0, 15.0)), sigma2=float(rng.uniform(0.1, 4.0)))
+    elif ranges == "wide":
         M = rng.uniform(0.0, 10.0, (n_options, n_attributes))
         w = rng.dirichlet(np.ones(n_attributes))
         params = dict(phi1=float(rng.uniform(0.0, 0.15)), phi2=float(rng.uniform(0.0, 0.15)),
@@ -79,7 +88,8 @@ def draw_model(rng, n_options, ranges="standard"):
         w = rng.dirichlet(np.full(n_attributes, 4.0))
         params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
                       phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)))
-    params["sigma2"] = float(np.exp(rng.uniform(np.log(0.1), np.log(4.0))))
+    if ranges != "flat":
+        params["sigma2"] = float(np.exp(rng.uniform(np.log(0.1), np.log(4.0))))
     theta = float(rng.uniform(5.0, 60.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)

@@ -220,7 +220,7 @@ def _bench():
 
 def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
     """``bench_threshold_exact.py --threads`` and ``--ranges`` name the option and what
-    they got; the wide ranges draw within their documented bounds."""
+    they got; the wide and flat ranges draw within their documented bounds."""
     bench = _bench()
     with pytest.raises(SystemExit):
         bench.main(["--threads", "0", "--ternary", "0", "--binary", "0"])
@@ -245,6 +245,15 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
         assert np.all((model.M >= 0.0) & (model.M <= 10.0))
         assert 0.0 <= model.phi1 <= 0.15 and 0.0 <= model.phi2 <= 0.15
         assert 0.5 <= model.beta <= 25.0 and 0.1 <= model.sigma2 <= 4.0 and 5.0 <= theta <= 60.0
+    noise = []
+    for _ in range(200):
+        model, theta = bench.draw_model(rng, 3, "flat")
+        assert np.all((model.M >= 1.0) & (model.M <= 5.0))
+        assert 0.01 <= model.phi1 <= 0.1 and 0.01 <= model.phi2 <= 0.1
+        assert 1.0 <= model.beta <= 15.0 and 0.1 <= model.sigma2 <= 4.0 and 5.0 <= theta <= 60.0
+        noise.append(model.sigma2)
+    # uniform, not log-uniform: about half the draws above 2 (about a fifth when log-uniform)
+    assert 0.35 < np.mean(np.array(noise) > 2.0) < 0.65
 
 
 def test_work_benchmark_measures_the_three_units(capsys):
