@@ -78,17 +78,17 @@ def draw_model(rng, n_options, ranges="standard"):
         w = rng.dirichlet(np.ones(n_attributes))
         params = dict(phi1=float(rng.uniform(0.01, 0.1)), phi2=float(rng.uniform(0.01, 0.1)),
                       beta=float(rng.uniform(1.0, 15.0)), sigma2=float(rng.uniform(0.1, 4.0)))
-    elif ranges == "wide":
-        M = rng.uniform(0.0, 10.0, (n_options, n_attributes))
-        w = rng.dirichlet(np.ones(n_attributes))
-        params = dict(phi1=float(rng.uniform(0.0, 0.15)), phi2=float(rng.uniform(0.0, 0.15)),
-                      beta=float(rng.uniform(0.5, 25.0)))
     else:
-        M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
-        w = rng.dirichlet(np.full(n_attributes, 4.0))
-        params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
-                      phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)))
-    if ranges != "flat":
+        if ranges == "wide":
+            M = rng.uniform(0.0, 10.0, (n_options, n_attributes))
+            w = rng.dirichlet(np.ones(n_attributes))
+            params = dict(phi1=float(rng.uniform(0.0, 0.15)), phi2=float(rng.uniform(0.0, 0.15)),
+                          beta=float(rng.uniform(0.5, 25.0)))
+        else:
+            M = rng.uniform(0.5, 4.0, (n_options, n_attributes))
+            w = rng.dirichlet(np.full(n_attributes, 4.0))
+            params = dict(phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
+                          phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1.0, 15.0)))
         params["sigma2"] = float(np.exp(rng.uniform(np.log(0.1), np.log(4.0))))
     theta = float(rng.uniform(5.0, 60.0))
     with warnings.catch_warnings():
