@@ -74,6 +74,12 @@ def store_words(state, s0, s1, s2, s3):
 
 
 @njit_inline
+def load_words(state):
+    """The four words of the stream ``state``, to be held in local variables."""
+    return state[0], state[1], state[2], state[3]
+
+
+@njit_inline
 def next_u64(state):
     """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
     result, s0, s1, s2, s3 = xoshiro(state[0], state[1], state[2], state[3])
@@ -304,10 +310,7 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
         s02, s12, s20, s21, s22 = _third(S)
         c02, c12, c20, c21, c22 = _third(C)
     noisy = noise_sd > 0.0
-    w0 = state[0]
-    w1 = state[1]
-    w2 = state[2]
-    w3 = state[3]
+    w0, w1, w2, w3 = load_words(state)
     p0 = P0[0]
     p1 = P0[1]
     p2 = P0[2] if three else 0.0
@@ -354,11 +357,71 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     return argmax_random_ties(P, state), t
 
 
+@njit_inline
+def _row4(A, i):
+    """Row ``i`` of the 4 x 4 matrix ``A`` as four scalars."""
+    return A[i, 0], A[i, 1], A[i, 2], A[i, 3]
+
+
+@njit_inline
+def _four_normals(sd, w0, w1, w2, w3):
+    """Four normal deviates of standard deviation ``sd``, in order, from the stream's words
+    held in local variables: ``(e0, e1, e2, e3, w0, w1, w2, w3)``."""
+    z0, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    z1, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    z2, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    z3, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    return sd * z0, sd * z1, sd * z2, sd * z3, w0, w1, w2, w3
+
+
+@njit
+def quad_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_threshold, P):
+    """:func:`small_trial` for four options: :func:`plain_trial`'s draws and arithmetic in
+    the same order, so the same choices and steps to the bit, with the state, ``S``, ``C``
+    and the stream's words in scalars (a kernel of its own, so that the two- and
+    three-option kernel keeps its registers)."""
+    s00, s01, s02, s03 = _row4(S, 0)
+    s10, s11, s12, s13 = _row4(S, 1)
+    s20, s21, s22, s23 = _row4(S, 2)
+    s30, s31, s32, s33 = _row4(S, 3)
+    c00, c01, c02, c03 = _row4(C, 0)
+    c10, c11, c12, c13 = _row4(C, 1)
+    c20, c21, c22, c23 = _row4(C, 2)
+    c30, c31, c32, c33 = _row4(C, 3)
+    noisy = noise_sd > 0.0
+    w0, w1, w2, w3 = load_words(state)
+    p0, p1, p2, p3 = P0[0], P0[1], P0[2], P0[3]
+    e0 = e1 = e2 = e3 = 0.0
+    decided = False
+    for t in range(1, n_steps + 1):
+        j, w0, w1, w2, w3 = attribute_words(w0, w1, w2, w3, cuts)
+        if noisy:
+            e0, e1, e2, e3, w0, w1, w2, w3 = _four_normals(noise_sd, w0, w1, w2, w3)
+        q0 = s00 * p0 + s01 * p1 + s02 * p2 + s03 * p3 + CM[0, j]
+        q1 = s10 * p0 + s11 * p1 + s12 * p2 + s13 * p3 + CM[1, j]
+        q2 = s20 * p0 + s21 * p1 + s22 * p2 + s23 * p3 + CM[2, j]
+        q3 = s30 * p0 + s31 * p1 + s32 * p2 + s33 * p3 + CM[3, j]
+        if noisy:
+            q0 = q0 + c00 * e0 + c01 * e1 + c02 * e2 + c03 * e3
+            q1 = q1 + c10 * e0 + c11 * e1 + c12 * e2 + c13 * e3
+            q2 = q2 + c20 * e0 + c21 * e1 + c22 * e2 + c23 * e3
+            q3 = q3 + c30 * e0 + c31 * e1 + c32 * e2 + c33 * e3
+        p0, p1, p2, p3 = q0, q1, q2, q3
+        if use_threshold and (p0 >= theta or p1 >= theta or p2 >= theta or p3 >= theta):
+            decided = True
+            break
+    store_words(state, w0, w1, w2, w3)
+    if use_threshold and not decided:
+        return -1, -1
+    P[0], P[1], P[2], P[3] = p0, p1, p2, p3
+    return argmax_random_ties(P, state), t
+
+
 @njit
 def plain_chunk(state, first, stop, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
                 use_threshold, choices, steps):
     """Trials ``first <= k < stop`` with :func:`plain_trial` on one stream
-    (:func:`small_trial` for two or three options).
+    (:func:`small_trial` for two or three options, :func:`quad_trial` for four).
 
     Writes ``choices[k - first]`` and ``steps[k - first]``.
     """
@@ -372,6 +435,9 @@ def plain_chunk(state, first, stop, S, CM, C, noise_sd, cuts, P0, n_steps, theta
         if small:
             choice, step = small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
                                        use_threshold, P)
+        elif n == 4:
+            choice, step = quad_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
+                                      use_threshold, P)
         else:
             choice, step = plain_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta,
                                        use_threshold, P, P_next, eps, dummy, False)
