@@ -82,7 +82,8 @@ def load_words(state):
 @njit_inline
 def next_u64(state):
     """Advance the xoshiro256++ stream ``state`` (uint64[4]) and return 64 random bits."""
-    result, s0, s1, s2, s3 = xoshiro(state[0], state[1], state[2], state[3])
+    s0, s1, s2, s3 = load_words(state)
+    result, s0, s1, s2, s3 = xoshiro(s0, s1, s2, s3)
     store_words(state, s0, s1, s2, s3)
     return result
 
@@ -160,7 +161,8 @@ def normal_words(s0, s1, s2, s3):
 @njit_inline
 def standard_normal(state):
     """A standard normal deviate from the stream ``state`` (:func:`normal_words`)."""
-    z, s0, s1, s2, s3 = normal_words(state[0], state[1], state[2], state[3])
+    s0, s1, s2, s3 = load_words(state)
+    z, s0, s1, s2, s3 = normal_words(s0, s1, s2, s3)
     store_words(state, s0, s1, s2, s3)
     return z
 
@@ -192,7 +194,8 @@ def attribute_words(s0, s1, s2, s3, cuts):
 @njit_inline
 def draw_attribute(state, cuts):
     """Index of the attended attribute from the stream ``state`` (:func:`attribute_words`)."""
-    j, s0, s1, s2, s3 = attribute_words(state[0], state[1], state[2], state[3], cuts)
+    s0, s1, s2, s3 = load_words(state)
+    j, s0, s1, s2, s3 = attribute_words(s0, s1, s2, s3, cuts)
     store_words(state, s0, s1, s2, s3)
     return j
 
