@@ -2,8 +2,8 @@
 
 Usage::
 
-    python benchmarks/bench_fit_rt.py                         # 4 random models
-    python benchmarks/bench_fit_rt.py --models 4 --workers 2 --checkpoint /tmp/rt-fits
+    python benchmarks/bench_fit_rt.py                         # 12 random models
+    python benchmarks/bench_fit_rt.py --models 12 --workers 2 --checkpoint /tmp/rt-fits
 
 For each random true model (3 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
 sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta = 12 known),
@@ -67,7 +67,7 @@ def errors(res, truth):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", type=int, default=4)
+    ap.add_argument("--models", type=int, default=12)
     ap.add_argument("--trials", type=int, default=200, help="trials per pair")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)

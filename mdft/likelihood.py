@@ -32,6 +32,10 @@ __all__ = ["Likelihood", "stopping_kind"]
 PROBABILITY_FLOOR = 1e-12
 #: Value of the negative log-likelihood where the model cannot be evaluated.
 INFEASIBLE = 1e300
+#: Why an evaluation failed, where no exception names it.
+OVERFLOW = "the predicted probabilities are not finite (preferences overflow)"
+NO_DECISION = ("the model decides in no trial within max_steps (every choice probability "
+               "is 0), so the shares given a decision are undefined")
 #: Default number of quantile bins of response times for a simulated likelihood.
 DEFAULT_RT_BINS = 10
 
@@ -246,7 +250,7 @@ class Likelihood:
             pmf = res.response_time_pmf()
         decided = 1.0 - float(res.p_undecided)
         if not decided > 0:
-            return INFEASIBLE
+            return self._failed(NO_DECISION)
         if self.rt_mode == "steps":
             t, o, c = self.cells[k]
             f = pmf[t, o] / decided
@@ -275,17 +279,21 @@ class Likelihood:
             else:
                 for q, c in zip(self.predict(p), self.counts):
                     if not np.all(np.isfinite(q)):
-                        self.n_failed += 1
-                        self.first_failure = self.first_failure or (
-                            "the predicted probabilities are not finite (preferences overflow)")
-                        return INFEASIBLE
+                        # the closed form's moments overflow; a threshold engine's shares
+                        # given a decision are undefined only where no trial decides
+                        return self._failed(OVERFLOW if self.engine == "closed_form"
+                                            else NO_DECISION)
                     total -= float(c @ np.log(np.maximum(q, PROBABILITY_FLOOR)))
         except (ValueError, FloatingPointError) as exc:
             # e.g. preferences that overflow, or an engine that cannot vouch for its answer
-            self.n_failed += 1
-            self.first_failure = self.first_failure or f"{type(exc).__name__}: {exc}"
-            return INFEASIBLE
+            return self._failed(f"{type(exc).__name__}: {exc}")
         return total if np.isfinite(total) else INFEASIBLE
+
+    def _failed(self, reason):
+        """Count an evaluation that failed, keep the first reason, and return INFEASIBLE."""
+        self.n_failed += 1
+        self.first_failure = self.first_failure or reason
+        return INFEASIBLE
 
     def log_likelihood(self, p):
         """The log-likelihood at parameter dict ``p`` (with its constant)."""

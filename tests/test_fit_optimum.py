@@ -138,3 +138,25 @@ def test_failed_evaluations_are_reported():
     assert "likelihood evaluations failed and counted as impossible" in res.message
     assert "preferences overflow" in res.message
     assert res.params["phi2"] < 2.0  # the optimum lies where the model can be evaluated
+
+
+@pytest.mark.parametrize("response_times", [False, True])
+def test_evaluations_where_no_trial_decides_are_reported_as_such(response_times):
+    # thresholds up to 300 within 40 steps: part of the box decides in no trial
+    model = mdft.MDFTModel([[1.0, 3.0], [3.0, 1.0]], [0.6, 0.4], phi1=0.02, phi2=0.05,
+                           beta=12.0, sigma2=1.0)
+    sim = mdft.simulate(model, 200, stopping=mdft.Threshold(6.0, max_steps=40), rng=3)
+    ok = sim.choices >= 0
+    data = mdft.ChoiceData.from_trials([[0, 1]] * int(ok.sum()), sim.choices[ok],
+                                       response_times=sim.decision_steps[ok])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.FitConvergenceWarning)
+        res = mdft.fit(data, model.M, stopping=mdft.Threshold(6.0, max_steps=40),
+                       params=["theta"], fixed=dict(w=[0.6, 0.4], phi1=0.02, phi2=0.05,
+                                                    beta=12.0, sigma2=1.0),
+                       bounds=dict(theta=(2.0, 300.0)), response_times=response_times,
+                       n_starts=3, rng=0)
+    assert "likelihood evaluations failed and counted as impossible" in res.message
+    assert "decides in no trial within max_steps" in res.message
+    assert "overflow" not in res.message
+    assert res.params["theta"] < 20.0  # the optimum lies where trials decide
