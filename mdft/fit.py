@@ -86,7 +86,8 @@ def fit(
         others at the best, mutually distant points of a global screen of
         ``n_screen_per_start * (n_starts - 1)`` scrambled Sobol points over the bounded box.
         When only one start reaches the best log-likelihood, up to ``n_confirm`` further
-        screen points are tried. ``n_starts=1`` skips the screen and the agreement check.
+        screen points are tried. ``n_starts=1`` skips the screen and the agreement check,
+        so its optimum is a local one that nothing confirms: ``converged`` is then False.
     rng : None, int or numpy.random.Generator
         Randomness of the extra starts (and of the simulation seed, if simulation is used).
     max_iter : int, default 500
@@ -132,8 +133,9 @@ def fit(
     FitConvergenceWarning
         Whenever ``converged`` is False: no start that reached the best log-likelihood met
         its optimiser's criterion, the starts disagree (only one reached the best
-        log-likelihood, even after ``n_confirm`` further starts), a fitted parameter lies on
-        a bound, or the exact threshold engine warned at the optimum.
+        log-likelihood, even after ``n_confirm`` further starts), there was a single start
+        (``n_starts=1``), a fitted parameter lies on a bound, or the exact threshold engine
+        warned at the optimum.
 
     Notes
     -----

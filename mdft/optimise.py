@@ -9,7 +9,8 @@
    not, up to ``n_confirm`` further starts from the next best distant screen points try to
    reach it (or better). The best screen point is always a start, so no screened point is
    better than the optimum returned;
-4. an optimum on a face of the cube is reported.
+4. an optimum on a face of the cube is reported. A single start (``n_starts=1``) has no
+   screen and nothing to agree with, so its optimum is never confirmed.
 
 The outcome says whether the optimum is confirmed (:attr:`MultiStartOutcome.converged`);
 the caller warns when it is not.
@@ -159,7 +160,10 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
     # L-BFGS-B line search can end "abnormally" a rounding error away from the optimum)
     if not any(r.success for r in runs if r.fun <= best.fun + agree_tol):
         problems.append(f"the best start did not converge ({best.message})")
-    if n_starts > 1 and n_agree < 2:
+    if n_starts == 1:
+        problems.append("a single start: its optimum was not checked against a screen or "
+                        "other starts (n_starts >= 2 checks it)")
+    elif n_agree < 2:
         problems.append(
             f"the starts disagree: only one of {len(runs)} reached the best log-likelihood "
             f"(within {agree_tol:g})"

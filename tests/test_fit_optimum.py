@@ -79,6 +79,25 @@ def test_starts_that_disagree_are_reported():
     assert out2.converged and out2.n_agree == 3 and out2.best.x[0] == pytest.approx(0.3, abs=1e-4)
 
 
+def test_a_single_start_is_never_called_converged():
+    # the narrow and the broad well of the test above: one start from the broad well ends
+    # there, a local optimum; with nothing to check it against it must not claim convergence
+    def f(u):
+        x = float(u[0])
+        return -2.0 * np.exp(-((x - 0.9) / 0.01) ** 2) - np.exp(-((x - 0.3) / 0.2) ** 2)
+
+    out = multistart(f, np.array([0.5]), n_starts=1, n_screen=8, rng=np.random.default_rng(0),
+                     smooth=True, max_iter=200, tol=1e-12, fatol=1e-12, agree_tol=1e-3)
+    assert out.best.x[0] == pytest.approx(0.3, abs=1e-3) and out.best.success
+    assert not out.converged and out.n_screen == 0 and len(out.runs) == 1
+    assert any("a single start" in p for p in out.problems)
+    data, M, T, truth = random_problem(1)
+    fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
+    with pytest.warns(mdft.FitConvergenceWarning, match="a single start"):
+        res = mdft.fit(data, M, stopping=T, params=["w"], fixed=fixed, n_starts=1, rng=0)
+    assert not res.converged and "n_starts >= 2" in res.message
+
+
 def test_fit_warns_when_only_one_start_reaches_the_best(monkeypatch):
     data, M, T, truth = random_problem(1)
     fixed = {k: truth[k] for k in ("phi1", "phi2", "beta", "sigma2")}
