@@ -40,6 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mdft  # noqa: E402
+from _synthetic import threshold_trials  # noqa: E402
 
 PARAMS = ["w", "phi1", "phi2", "sigma2"]
 SUBSETS = [[0, 1], [0, 1, 2], [0, 1, 3], [1, 2, 3]]
@@ -81,19 +82,9 @@ def random_threshold_problem(seed):
                  phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
                  sigma2=rng.uniform(0.3, 3.0), theta=rng.uniform(5.0, 20.0))
     known = {k: truth[k] for k in ("phi1", "phi2", "beta")}
-    subsets, choices, steps = [], [], []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-        for s in THRESHOLD_SUBSETS:
-            model = mdft.MDFTModel(M[s], truth["w"], sigma2=truth["sigma2"], **known)
-            sim = mdft.simulate(model, int(rng.integers(40, 101)),
-                                stopping=mdft.Threshold(truth["theta"], THRESHOLD_MAX_STEPS),
-                                rng=rng)
-            ok = sim.choices >= 0
-            subsets += [s] * int(ok.sum())
-            choices += [s[c] for c in sim.choices[ok]]
-            steps += sim.decision_steps[ok].tolist()
-    data = mdft.ChoiceData.from_trials(subsets, choices, response_times=steps)
+    data = threshold_trials(M, truth["w"], dict(known, sigma2=truth["sigma2"]),
+                            THRESHOLD_SUBSETS, truth["theta"], THRESHOLD_MAX_STEPS,
+                            lambda: int(rng.integers(40, 101)), rng)
     problem = dict(data=data, M=M, stopping=mdft.Threshold(10.0, THRESHOLD_MAX_STEPS),
                    params=THRESHOLD_PARAMS, fixed=known,
                    bounds=dict(sigma2=(0.05, 10.0), theta=(2.0, 60.0)))

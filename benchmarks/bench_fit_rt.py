@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mdft  # noqa: E402
+from _synthetic import threshold_trials  # noqa: E402
 
 KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
 PARAMS = ["w", "sigma2", "theta"]
@@ -44,18 +44,8 @@ def random_model(seed, n_trials):
     w0 = rng.uniform(0.3, 0.7)
     truth = dict(w=np.array([w0, 1 - w0]), sigma2=rng.uniform(0.5, 3.0),
                  theta=rng.uniform(5.0, 15.0))
-    subsets, choices, steps = [], [], []
-    for pair in PAIRS:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
-            model = mdft.MDFTModel(M[pair], truth["w"], sigma2=truth["sigma2"], **KNOWN)
-        sim = mdft.simulate(model, n_trials, stopping=mdft.Threshold(truth["theta"], MAX_STEPS),
-                            rng=rng)
-        ok = sim.choices >= 0
-        subsets += [pair] * int(ok.sum())
-        choices += [pair[c] for c in sim.choices[ok]]
-        steps += sim.decision_steps[ok].tolist()
-    data = mdft.ChoiceData.from_trials(subsets, choices, response_times=steps)
+    data = threshold_trials(M, truth["w"], dict(KNOWN, sigma2=truth["sigma2"]), PAIRS,
+                            truth["theta"], MAX_STEPS, n_trials, rng)
     return data, M, truth
 
 
