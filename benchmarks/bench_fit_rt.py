@@ -25,6 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))  # the shared helpers, also when imported by path
 
 import mdft  # noqa: E402
 from _synthetic import threshold_trials  # noqa: E402
