@@ -38,6 +38,19 @@ NO_DECISION = ("the model decides in no trial within max_steps (every choice pro
                "is 0), so the shares given a decision are undefined")
 #: Default number of quantile bins of response times for a simulated likelihood.
 DEFAULT_RT_BINS = 10
+#: The simulated likelihood skips its trials where the bound on deciding at all
+#: (``mdft._threshold_bound.decision_bound``) times the trials is at most this: the
+#: expected number of trials that would decide.
+UNREACHED_TRIALS = 0.01
+
+
+class _Undecided:
+    """What the trials of a threshold out of reach would give: no decision."""
+
+    p_undecided = 1.0
+
+    def __init__(self, n_options):
+        self.probabilities = np.zeros(n_options)
 
 
 def stopping_kind(stopping):
@@ -223,8 +236,14 @@ class Likelihood:
             self.last_warnings += [str(w.message) for w in caught]
             return res
         import mdft
+        from ._threshold_bound import decision_bound
 
-        return mdft.simulate(quiet_model(Ms, p), self.n_samples,
+        model = quiet_model(Ms, p)
+        if decision_bound(model, theta, max_steps) * self.n_samples <= UNREACHED_TRIALS:
+            # a threshold out of reach: the trials would all run max_steps steps to decide
+            # nothing (but for a chance below UNREACHED_TRIALS that one of them decides)
+            return _Undecided(len(sub))
+        return mdft.simulate(model, self.n_samples,
                              stopping=mdft.Threshold(theta, max_steps=max_steps),
                              rng=self.seed + k)
 
@@ -244,13 +263,13 @@ class Likelihood:
 
     def _rt_term(self, res, k, n_options):
         """``-sum log f(choice, time)`` of subset ``k`` from an exact or simulated result."""
+        decided = 1.0 - float(res.p_undecided)
+        if not decided > 0:
+            return self._failed(NO_DECISION)
         if self.engine == "threshold_exact":
             pmf = np.asarray(res.rt_pmf, dtype=np.float64)
         else:
             pmf = res.response_time_pmf()
-        decided = 1.0 - float(res.p_undecided)
-        if not decided > 0:
-            return self._failed(NO_DECISION)
         if self.rt_mode == "steps":
             t, o, c = self.cells[k]
             f = pmf[t, o] / decided

@@ -179,3 +179,32 @@ def test_evaluations_where_no_trial_decides_are_reported_as_such(response_times)
     assert "decides in no trial within max_steps" in res.message
     assert "overflow" not in res.message
     assert res.params["theta"] < 20.0  # the optimum lies where trials decide
+
+
+@pytest.mark.parametrize("use_rt", [False, True])
+def test_the_simulated_likelihood_skips_trials_at_a_threshold_out_of_reach(monkeypatch, use_rt):
+    from mdft.likelihood import Likelihood
+
+    M = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+    model = mdft.MDFTModel(M, [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+    sim = mdft.simulate(model, 300, stopping=mdft.Threshold(8.0, max_steps=200), rng=1)
+    ok = sim.choices >= 0
+    data = mdft.ChoiceData.from_trials([[0, 1, 2]] * int(ok.sum()), sim.choices[ok],
+                                       response_times=sim.decision_steps[ok])
+    stopping = mdft.Threshold(8.0, max_steps=200)
+    lik = Likelihood(data, stopping, "simulation", use_rt=use_rt, rt_bins=None,
+                     n_samples=2000, seed=5, threshold_options=None)
+    p = dict(M=M, w=np.array([0.5, 0.5]), phi1=0.022, phi2=0.05, beta=12.0, sigma2=1.0)
+    calls = []
+    real = mdft.simulate
+
+    def counting(*args, **kwargs):
+        calls.append(kwargs["stopping"].theta)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mdft, "simulate", counting)
+    assert lik.negative(dict(p, theta=8.0)) < 1e299 and calls == [8.0]
+    # 200 steps cannot bring a preference to 500: no trial is simulated, and the evaluation
+    # fails for the reason the trials would have given
+    assert lik.negative(dict(p, theta=500.0)) == 1e300 and calls == [8.0]
+    assert lik.n_failed == 1 and "decides in no trial within max_steps" in lik.first_failure
