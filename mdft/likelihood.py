@@ -22,6 +22,7 @@ import warnings
 
 import numpy as np
 
+from ._threshold_bound import decision_bound
 from ._validation import as_count, as_float_array, as_scalar
 from .closed_form import _fixed_time_probabilities
 from .model import MDFTModel, UnstableFeedbackWarning
@@ -236,7 +237,6 @@ class Likelihood:
             self.last_warnings += [str(w.message) for w in caught]
             return res
         import mdft
-        from ._threshold_bound import decision_bound
 
         model = quiet_model(Ms, p)
         if decision_bound(model, theta, max_steps) * self.n_samples <= UNREACHED_TRIALS:
