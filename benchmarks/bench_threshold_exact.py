@@ -7,7 +7,8 @@ phi1 log-uniform on [0.005, 0.1], phi2 uniform on [0.01, 0.1], beta uniform on
 threshold-stopping probabilities and mean response times with
 mdft.threshold_probabilities, and compares them with mdft.simulate
 (``--trials`` trials, default 10**6) under the same step limit. Prints one line
-per model and then the median and maximum errors and times.
+per model and then the median and maximum errors, and the times against the speed
+targets (the median, the calls of at most 0.2 s and of more than 2 s, the largest).
 
     python benchmarks/bench_threshold_exact.py                        # 20 ternary + 10 binary
     python benchmarks/bench_threshold_exact.py --ternary 5 --binary 0 --trials 100000
@@ -236,7 +237,7 @@ def run_set(label, models, n_options, args):
         if times:
             print(f"{label}: {len(rows)} models answered ({sum(r[5] for r in rows)} of them by "
                   f"the simulation fallback), {len(refused)} refused; time (answered and "
-                  f"refused) median {np.median(times):.2f} s max {np.max(times):.2f} s")
+                  f"refused) {speed_summary(times)}")
         else:
             print(f"{label}: no models")
         return
@@ -248,10 +249,25 @@ def run_set(label, models, n_options, args):
               f"(simulation se up to {a[:, 3].max():.4f}); "
               f"|dRT| median {np.median(a[:, 1]):.4f} max {a[:, 1].max():.4f} "
               f"(options with p > 0.1: max {a[:, 4].max():.4f}); "
-              f"time (answered and refused) median {np.median(times):.2f} s "
-              f"max {np.max(times):.2f} s")
+              f"time (answered and refused) {speed_summary(times)}")
     elif refused:
         print(f"{label}: all {len(refused)} refused")
+
+
+#: The speed targets of a three-option call: a median of 0.2 s and at most 2 s.
+TARGET_MEDIAN_S = 0.2
+TARGET_MAX_S = 2.0
+
+
+def speed_summary(times):
+    """The times of a set of calls against the speed targets, as one phrase: the median, how
+    many calls took at most ``TARGET_MEDIAN_S`` and how many more than ``TARGET_MAX_S``, and
+    the largest."""
+    times = np.asarray(times, dtype=np.float64)
+    fast = int(np.count_nonzero(times <= TARGET_MEDIAN_S))
+    slow = int(np.count_nonzero(times > TARGET_MAX_S))
+    return (f"median {np.median(times):.2f} s, {fast} of {times.size} calls at most "
+            f"{TARGET_MEDIAN_S:g} s, {slow} over {TARGET_MAX_S:g} s, max {times.max():.2f} s")
 
 
 def main(argv=None):

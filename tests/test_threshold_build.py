@@ -218,6 +218,14 @@ def _bench():
     return bench
 
 
+def test_benchmark_counts_the_calls_against_the_speed_targets():
+    """The benchmark's summary counts the calls within the median target (0.2 s, included)
+    and over the largest time allowed (2 s, excluded) and gives the median and maximum."""
+    bench = _bench()
+    line = bench.speed_summary([0.05, 0.2, 0.21, 2.0, 2.01, 7.5])
+    assert line == "median 1.10 s, 2 of 6 calls at most 0.2 s, 2 over 2 s, max 7.50 s"
+
+
 def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
     """``bench_threshold_exact.py --threads`` and ``--ranges`` name the option and what
     they got; the wide and flat ranges draw within their documented bounds."""
