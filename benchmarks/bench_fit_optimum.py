@@ -51,14 +51,21 @@ THRESHOLD_SUBSETS = [[0, 1], [0, 2], [1, 2], [0, 1, 2]]
 THRESHOLD_MAX_STEPS = 1000
 
 
+def random_truth(rng, sigma2_range):
+    """True parameters of a random problem, drawn from ``rng`` in this order: w (w[0] in
+    [0.2, 0.8]), phi1 in [0.005, 0.1], phi2 in [0.01, 0.2], beta in [1, 15], sigma2 in
+    ``sigma2_range``."""
+    w0 = rng.uniform(0.2, 0.8)
+    return dict(w=np.array([w0, 1.0 - w0]), phi1=rng.uniform(0.005, 0.1),
+                phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
+                sigma2=rng.uniform(*sigma2_range))
+
+
 def random_problem(seed):
     """A random synthetic fixed-time problem: (fit arguments, true parameters)."""
     rng = np.random.default_rng(seed)
     M = rng.uniform(0.0, 2.5, size=(4, 2))
-    w0 = rng.uniform(0.2, 0.8)
-    truth = dict(w=np.array([w0, 1.0 - w0]), phi1=rng.uniform(0.005, 0.1),
-                 phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
-                 sigma2=rng.uniform(0.5, 4.0))
+    truth = random_truth(rng, (0.5, 4.0))
     T = int(rng.integers(10, 60))
     counts = []
     with warnings.catch_warnings():
@@ -78,10 +85,8 @@ def random_threshold_problem(seed):
     """A random synthetic threshold problem with decision steps: (fit arguments, truth)."""
     rng = np.random.default_rng(seed)
     M = rng.uniform(0.0, 3.0, size=(3, 2))
-    w0 = rng.uniform(0.2, 0.8)
-    truth = dict(w=np.array([w0, 1.0 - w0]), phi1=rng.uniform(0.005, 0.1),
-                 phi2=rng.uniform(0.01, 0.2), beta=rng.uniform(1.0, 15.0),
-                 sigma2=rng.uniform(0.3, 3.0), theta=rng.uniform(5.0, 20.0))
+    truth = random_truth(rng, (0.3, 3.0))
+    truth["theta"] = rng.uniform(5.0, 20.0)
     known = {k: truth[k] for k in ("phi1", "phi2", "beta")}
     data = threshold_trials(M, truth["w"], dict(known, sigma2=truth["sigma2"]),
                             THRESHOLD_SUBSETS, truth["theta"], THRESHOLD_MAX_STEPS,
