@@ -12,6 +12,11 @@ import mdft
 from mdft import ChoiceData, fit
 from mdft.datasets import load_sushi, load_thesis_set
 
+# Many fits here take one start for speed; a single start is never called converged and says
+# so (tests/test_fit_optimum.py checks that), which is expected in the tests of this module.
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:the fit may not have found the maximum. a single start:mdft.FitConvergenceWarning")
+
 M5 = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0], [0.9, 3.1], [0.5, 2.5]])
 TRUTH = dict(w=np.array([0.55, 0.45]), phi1=0.03, phi2=0.06, beta=8.0, sigma2=0.8)
 SUBSETS = [[0, 1], [0, 1, 2], [0, 1, 3], [0, 1, 4], [1, 2, 4]]
