@@ -74,3 +74,19 @@ def assert_matches_simulation(res, model, theta, n_trials, seed, max_steps=10_00
         gap = abs(res.mean_response_times[i] - rt.mean())
         limit = 4 * se + (res.error_mean_rt + 0.005) * rt.mean()
         assert gap < limit, (i, res.mean_response_times[i], rt.mean(), se)
+
+
+def assert_within_stated_error(res, model, theta, n_trials, seed):
+    """Probabilities and mean response times (options chosen in >= 2000 trials) within
+    4 standard errors plus the stated error estimate, with no further slack."""
+    sim = mdft.simulate(model, n_trials, stopping=mdft.Threshold(theta, max_steps=10_000),
+                        rng=seed)
+    gap = np.abs(res.probabilities - sim.probabilities)
+    assert np.all(gap < 4 * sim.standard_errors + res.error_probabilities + 1e-4), (
+        res.probabilities, sim.probabilities, res.error_probabilities)
+    for i in np.flatnonzero(sim.counts >= 2000):
+        rt = sim.response_times(i)
+        se = rt.std(ddof=1) / math.sqrt(rt.size)
+        gap = abs(res.mean_response_times[i] - rt.mean())
+        assert gap < 4 * se + res.error_mean_rt * rt.mean(), (
+            i, res.mean_response_times[i], rt.mean(), se, res.error_mean_rt)
