@@ -146,6 +146,23 @@ def check_names(name, names):
     return names
 
 
+def _pair(name, value):
+    """``value`` as a (lower, upper) pair."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise ValueError(f"{name} must be a pair (lower, upper) (got {value!r})")
+    return value[0], value[1]
+
+
+def _broadcast(name, value, shape):
+    """``value`` (a scalar or an array) as a float array of ``shape``."""
+    arr = as_float_array(name, value)
+    try:
+        return np.broadcast_to(arr, shape).astype(np.float64)
+    except ValueError:
+        raise ValueError(f"{name} must be a number or an array of shape {shape} like M "
+                         f"(got shape {arr.shape})") from None
+
+
 def resolve(M, fitted, fixed, start, bounds, theta=None):
     """Check ``fixed``/``start``/``bounds``; return (values, bounds, first start).
 
@@ -206,7 +223,7 @@ def resolve(M, fitted, fixed, start, bounds, theta=None):
     for k in _SCALARS:
         if k not in fitted:
             continue
-        lo, hi = bounds.get(k, DEFAULT_BOUNDS[k])
+        lo, hi = _pair(f"bounds[{k!r}]", bounds.get(k, DEFAULT_BOUNDS[k]))
         lo = as_scalar(f"bounds[{k!r}][0]", lo, low=0.0)
         hi = as_scalar(f"bounds[{k!r}][1]", hi)
         if not hi > lo:
@@ -214,9 +231,9 @@ def resolve(M, fitted, fixed, start, bounds, theta=None):
         res_bounds[k] = (lo, hi)
     if "M" in fitted:
         if "M" in bounds:
-            lo, hi = bounds["M"]
-            lo = np.broadcast_to(as_float_array("bounds['M'][0]", lo), M.shape).astype(float)
-            hi = np.broadcast_to(as_float_array("bounds['M'][1]", hi), M.shape).astype(float)
+            lo, hi = _pair("bounds['M']", bounds["M"])
+            lo = _broadcast("bounds['M'][0]", lo, M.shape)
+            hi = _broadcast("bounds['M'][1]", hi, M.shape)
         else:
             span = max(float(M.max() - M.min()), 1.0)
             lo = np.full(M.shape, M.min() - span)
@@ -257,3 +274,21 @@ def resolve(M, fitted, fixed, start, bounds, theta=None):
     return values, res_bounds, first
 
 
+def check_values(params, current):
+    """``params`` (a dict of parameter values to evaluate at) checked as ``fixed`` values
+    are, each against the shape of its value in ``current`` (the fitted parameters); the
+    values as floats and arrays."""
+    out = {}
+    for k, v in params.items():
+        label = f"params[{k!r}]"
+        if k == "w":
+            out[k] = as_attention(v, np.asarray(current["w"]).size, name=label)
+        elif k == "M":
+            out[k] = as_float_array(label, v, shape=np.asarray(current["M"]).shape)
+        elif k == "theta":
+            if current.get("theta") is None:
+                raise ValueError(f"{label} is given, but the fit used fixed-time stopping")
+            out[k] = as_scalar(label, v, low=0.0, low_inclusive=False)
+        else:
+            out[k] = as_scalar(label, v, low=0.0)
+    return out

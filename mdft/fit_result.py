@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ._fit_params import check_values
 from .choice_data import _as_subset
 from .model import MDFTModel
 
@@ -207,8 +208,7 @@ class FitResult:
             raise ValueError(f"params has unknown parameter name(s) {bad}; allowed: "
                              f"{sorted(self.params)}")
         p = dict(self.params)
-        for k, v in params.items():
-            p[k] = np.asarray(v, dtype=np.float64) if k in ("w", "M") else float(v)
+        p.update(check_values(params, self.params))
         return float(self._likelihood.log_likelihood(p))
 
     def summary(self) -> str:

@@ -31,6 +31,13 @@ __all__ = ["LocalRun", "MultiStartOutcome", "multistart"]
 BOUND_TOL = 1e-3
 #: Screen points closer than this (largest coordinate difference) to a chosen start are skipped.
 _MIN_SPACING = 0.1
+#: A smooth local run has stopped at an optimum where no component of its slope (the
+#: gradient a move within the cube can follow) exceeds this times ``max(1, |f|)``.
+_FLAT = 1e-3
+#: Half-width of the first box a smooth run goes on in, the smallest, and the most boxes.
+_BOX = 0.05
+_MIN_BOX = 1e-3
+_BOX_ROUNDS = 20
 
 
 @dataclass(frozen=True)
@@ -64,18 +71,77 @@ def _sobol(size, n, rng):
     return qmc.Sobol(size, scramble=True, seed=rng).random_base2(m)[:n]
 
 
+def _lbfgsb(objective, u0, lower, upper, max_iter, tol):
+    return optimize.minimize(objective, u0, method="L-BFGS-B", jac="3-point",
+                             bounds=list(zip(lower, upper)),
+                             options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7})
+
+
+def _slope(x, gradient):
+    """The largest component of the gradient that a move within the unit cube can follow
+    downhill (0 for one pointing out of a face the point lies on); inf if not finite."""
+    g = np.array(gradient, dtype=np.float64)
+    if not np.all(np.isfinite(g)):
+        return math.inf
+    g[(x <= 0.0) & (g > 0.0)] = 0.0
+    g[(x >= 1.0) & (g < 0.0)] = 0.0
+    return float(np.max(np.abs(g))) if g.size else 0.0
+
+
+def _smooth_local(objective, u0, max_iter, tol):
+    """L-BFGS-B on the unit cube, continued in boxes around its end while the likelihood
+    still falls there.
+
+    L-BFGS-B's first step follows the gradient as far as the cube allows; where that lands
+    in a region the model cannot reach (the objective's impossible value), the line search
+    can end back at the start and report convergence by "relative reduction" without having
+    moved. Where the run ends with a slope above :data:`_FLAT` (times ``max(1, |f|)``), it
+    goes on from there within a box of half-width :data:`_BOX` (doubled when the run ends on
+    the box's edge, quartered when it gains nothing), for at most :data:`_BOX_ROUNDS` runs;
+    the run is reported as converged only if it ends where the slope is flat. The boxes
+    share the run's ``max_iter`` iterations."""
+    zeros, ones = np.zeros(u0.size), np.ones(u0.size)
+    res = _lbfgsb(objective, u0, zeros, ones, max_iter, tol)
+    x, f = np.clip(res.x, 0.0, 1.0), float(res.fun)
+    slope, n_iter = _slope(x, res.jac), int(res.nit)
+    if slope <= _FLAT * max(1.0, abs(f)):
+        return x, bool(res.success), str(res.message), n_iter
+    half, rounds = _BOX, 0
+    while (slope > _FLAT * max(1.0, abs(f)) and rounds < _BOX_ROUNDS and half >= _MIN_BOX
+           and n_iter < max_iter):
+        rounds += 1
+        lower, upper = np.maximum(x - half, 0.0), np.minimum(x + half, 1.0)
+        sub = _lbfgsb(objective, x, lower, upper, max_iter - n_iter, tol)
+        n_iter += int(sub.nit)
+        if not float(sub.fun) < f:
+            half /= 4.0
+            continue
+        x, f = np.clip(sub.x, lower, upper), float(sub.fun)
+        slope = _slope(x, sub.jac)
+        edge = ((x <= lower) & (lower > 0.0)) | ((x >= upper) & (upper < 1.0))
+        if np.any(edge):
+            half = min(2.0 * half, 0.5)
+    if slope <= _FLAT * max(1.0, abs(f)):
+        return x, True, f"{res.message}; continued in {rounds} boxes to a flat slope", n_iter
+    if n_iter >= max_iter:
+        return x, False, f"{max_iter} iterations (max_iter) reached", n_iter
+    return x, False, (f"the local search stopped where the likelihood still changes along "
+                      f"the cube (slope {slope:.3g} in unit-cube coordinates, after "
+                      f"{rounds} boxes)"), n_iter
+
+
 def _local(objective, u0, *, smooth, max_iter, tol, fatol):
-    bounds = [(0.0, 1.0)] * u0.size
     if smooth:
-        res = optimize.minimize(objective, u0, method="L-BFGS-B", jac="3-point", bounds=bounds,
-                                options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7})
+        x, success, message, n_iter = _smooth_local(objective, u0, max_iter, tol)
     else:
+        bounds = [(0.0, 1.0)] * u0.size
         res = optimize.minimize(objective, u0, method="Nelder-Mead", bounds=bounds,
                                 options={"maxiter": max_iter * u0.size, "xatol": 1e-4,
                                          "fatol": fatol, "adaptive": u0.size > 3})
-    x = np.clip(res.x, 0.0, 1.0)
-    return LocalRun(start=np.array(u0), x=x, fun=float(objective(x)), success=bool(res.success),
-                    message=str(res.message), n_iter=int(getattr(res, "nit", 0)))
+        x = np.clip(res.x, 0.0, 1.0)
+        success, message, n_iter = bool(res.success), str(res.message), int(getattr(res, "nit", 0))
+    return LocalRun(start=np.array(u0), x=x, fun=float(objective(x)), success=success,
+                    message=message, n_iter=n_iter)
 
 
 def _spread(points, taken, k):
@@ -133,7 +199,11 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
         order = np.argsort(values, kind="stable")
         screen, values = screen[order], values[order]
     screen_best = float(values[0]) if values.size else math.inf
-    used = set(_spread(screen, [first], n_starts - 1)) if values.size else set()
+    used = set()
+    if values.size and n_starts > 1:
+        # the best screen point is always a start, even near the first one (which may lie
+        # in another basin); the others are spread out from both
+        used = {0, *(i + 1 for i in _spread(screen[1:], [first, screen[0]], n_starts - 2))}
     runs = [_local(objective, first, **kw)]
     runs += [_local(objective, screen[i], **kw) for i in sorted(used)]
 

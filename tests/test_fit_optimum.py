@@ -3,6 +3,7 @@ repr, summary and to_dict."""
 
 import importlib.util
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -10,7 +11,8 @@ import numpy as np
 import pytest
 
 import mdft
-from mdft.optimise import multistart
+from mdft.likelihood import INFEASIBLE
+from mdft.optimise import _local, multistart
 
 
 def _load_benchmark():
@@ -79,6 +81,63 @@ def test_starts_that_disagree_are_reported():
     assert out2.converged and out2.n_agree == 3 and out2.best.x[0] == pytest.approx(0.3, abs=1e-4)
 
 
+def _lbfgsb_alone(f, u0):
+    from scipy import optimize
+
+    return optimize.minimize(f, u0, method="L-BFGS-B", jac="3-point", bounds=[(0, 1)] * u0.size,
+                             options={"maxiter": 500, "ftol": 1e-10, "gtol": 1e-7})
+
+
+def test_a_local_run_whose_first_step_lands_where_the_model_is_impossible_goes_on():
+    # a bowl at c whose gradient at the start points into an impossible corner (the
+    # likelihood's 1e300): L-BFGS-B's first step goes there, and it ends back at the start
+    # claiming convergence; the local run goes on in boxes and reaches the minimum
+    c = np.array([0.45, 0.2])
+
+    def f(u):
+        if (u[0] > 0.8 and u[1] < 0.3) or u[0] < 0.05:
+            return INFEASIBLE
+        return 2000.0 + 300.0 * float(np.sum((u - c) ** 2))
+
+    u0 = np.array([0.6, 0.5])
+    alone = _lbfgsb_alone(f, u0)
+    assert alone.success and np.array_equal(alone.x, u0)  # the stall this guards against
+    run = _local(f, u0, smooth=True, max_iter=500, tol=1e-10, fatol=1e-8)
+    assert run.success and "boxes" in run.message
+    np.testing.assert_allclose(run.x, c, atol=1e-4)
+    assert run.fun == pytest.approx(2000.0, abs=1e-6)
+
+
+def test_a_local_run_that_ends_on_a_slope_is_not_called_converged():
+    # the bowl's minimum lies beyond a wall of impossible values: the best point is at the
+    # wall, where the slope is steep; it is found, but not called an optimum
+    def f(u):
+        return INFEASIBLE if u[0] > 0.7 else 10.0 + 300.0 * float((u[0] - 0.9) ** 2)
+
+    run = _local(f, np.array([0.3]), smooth=True, max_iter=500, tol=1e-10, fatol=1e-8)
+    assert run.x[0] == pytest.approx(0.7, abs=5e-3) and not run.success
+    assert "still changes along the cube" in run.message
+    out = multistart(f, np.array([0.3]), n_starts=3, n_screen=8, rng=np.random.default_rng(0),
+                     smooth=True, max_iter=500, tol=1e-10, fatol=1e-8, agree_tol=1e-3)
+    assert not out.converged and any("did not converge" in p for p in out.problems)
+
+
+def test_the_best_screen_point_is_always_a_start():
+    # a broad bowl and a narrow deep well 0.06 from the first start: the screen point in the
+    # well is too close to the first start to count as spread out, but it is the best one,
+    # so it is a start and no screened point beats the optimum returned
+    def f(u):
+        broad = 5.0 * float(np.sum((u - np.array([0.3, 0.7])) ** 2))
+        well = -3.0 * math.exp(-float(np.sum((u - np.array([0.56, 0.45])) ** 2)) / 2.88e-4)
+        return broad + well
+
+    for seed in range(40):
+        out = multistart(f, np.array([0.5, 0.5]), n_starts=5, n_screen=32,
+                         rng=np.random.default_rng(seed), smooth=True, max_iter=500, tol=1e-10,
+                         fatol=1e-8, agree_tol=0.01)
+        assert out.best.fun <= out.screen_best + 1e-12, seed
+
+
 def test_a_single_start_is_never_called_converged():
     # the narrow and the broad well of the test above: one start from the broad well ends
     # there, a local optimum; with nothing to check it against it must not claim convergence
@@ -134,6 +193,15 @@ def test_log_likelihood_at_bad_input():
         res.log_likelihood_at([0.5, 0.5])
     with pytest.raises(ValueError, match=r"params has unknown parameter name\(s\) \['tau'\]"):
         res.log_likelihood_at({"tau": 1.0})
+    # values are checked as fixed values are, each naming its parameter
+    for bad, match in (({"w": [2.0, -1.0]}, r"params\['w'\] must be non-negative"),
+                       ({"w": [0.3, 0.3]}, r"params\['w'\] must sum to 1"),
+                       ({"w": [0.2, 0.3, 0.5]}, r"params\['w'\] must have one weight"),
+                       ({"sigma2": -1.0}, r"params\['sigma2'\] must be >= 0"),
+                       ({"phi2": float("nan")}, r"params\['phi2'\] must be finite"),
+                       ({"M": [[1.0, 3.0]]}, r"params\['M'\] must have shape \(2, 2\)")):
+        with pytest.raises(ValueError, match=match):
+            res.log_likelihood_at(bad)
 
 
 @pytest.mark.parametrize(
