@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ._validation import as_generator
 from .simulate import Threshold, simulate
 
 #: First batch of trials, and the largest number of trials times mean decision steps.
@@ -116,7 +117,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     """
     budgeted = max_work is not None
     max_work = MAX_WORK if max_work is None else min(max_work, MAX_WORK)
-    gen = np.random.default_rng(DEFAULT_SEED if rng is None else rng)
+    gen = as_generator("rng", DEFAULT_SEED if rng is None else rng)
     n_opt = model.n_options
     counts = np.zeros(n_opt, dtype=np.int64)
     n_undecided = 0

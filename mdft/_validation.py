@@ -119,3 +119,16 @@ def as_attention(w, n_attributes: int, *, name: str = "w", atol: float = 1e-6) -
             f"{name} must sum to 1 (got {total:.6g}); pass normalised attention weights"
         )
     return arr if abs(total - 1.0) <= 1e-12 else arr / total
+
+
+def as_generator(name: str, value) -> np.random.Generator:
+    """``value`` resolved with :func:`numpy.random.default_rng`, with an error that names
+    the parameter when numpy cannot resolve it (or would take a float or a bool as a seed)."""
+    wanted = (f"{name} must be None, a non-negative int seed, a sequence of them, a numpy "
+              f"SeedSequence or Generator (got {value!r}")
+    if isinstance(value, (bool, float, complex, str, bytes)):
+        raise TypeError(wanted + ")")
+    try:
+        return np.random.default_rng(value)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"{wanted}: {exc})") from None

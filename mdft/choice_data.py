@@ -38,11 +38,19 @@ def _as_subset(name, value, n_options=None):
     return arr
 
 
+#: Counts beyond this are not all whole numbers as floats (the likelihood's arithmetic).
+MAX_COUNT = 2**53
+
+
 def _as_counts(name, value, size):
     try:
+        raw = np.asarray(value)
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be a sequence of counts (got {value!r})") from exc
+    if raw.dtype == np.bool_:
+        raise TypeError(f"{name} must hold counts (whole numbers), not booleans "
+                        f"(got {raw.tolist()})")
     if arr.ndim != 1 or arr.size != size:
         raise ValueError(
             f"{name} must hold one count per option of its subset, length {size} "
@@ -50,6 +58,9 @@ def _as_counts(name, value, size):
         )
     if not np.all(np.isfinite(arr)) or np.any(arr < 0) or np.any(arr != np.round(arr)):
         raise ValueError(f"{name} must hold non-negative whole numbers (got {arr.tolist()})")
+    if np.any(arr > MAX_COUNT) or sum(int(c) for c in arr) > MAX_COUNT:
+        raise ValueError(f"{name} must hold counts that sum to at most 2**53 (got "
+                         f"{arr.tolist()})")
     out = arr.astype(np.int64)
     if out.sum() == 0:
         raise ValueError(f"{name} sums to 0: every subset needs at least one observed choice")

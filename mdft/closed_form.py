@@ -45,7 +45,7 @@ from ._orthant import (_TIE_RTOL, _OrthantSumError, _ordered_cholesky, _orthant_
                        _probabilities_from_moments, sov_orthants_many)
 from ._edgeworth import (attention_cumulants, bivariate_cdf, error_estimate, geometric_sums,
                          lattice_terms, lumpiness)
-from ._validation import MAX_STEPS, as_count, as_scalar
+from ._validation import MAX_STEPS, as_count, as_generator, as_scalar
 from .model import MDFTModel, UnstableFeedbackWarning, warn_if_growing
 
 __all__ = [
@@ -576,7 +576,7 @@ def mixture_choice_probabilities(model: MDFTModel, n_steps: int, *, n_sequences:
             f"mixture_choice_probabilities needs sigma2 > 0 (got {model.sigma2}); with no "
             "noise P(T) is discrete: use mdft.simulate"
         )
-    rng = np.random.default_rng(rng)
+    rng = as_generator("rng", rng)
     S = np.asarray(model.S)
     C = np.asarray(model.C)
     CM = C @ np.asarray(model.M)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ._typing import SeedLike
 from ._export import builtin, describe_stopping, fmt, stopping_dict, table, to_json
-from ._validation import MAX_SAMPLES, as_count, as_float_array, as_scalar
+from ._validation import MAX_SAMPLES, as_count, as_float_array, as_generator, as_scalar
 from .closed_form import choice_probabilities
 from .model import MDFTModel
 from .simulate import FixedTime, Threshold, simulate
@@ -593,7 +593,7 @@ def context_effects(
     if method == "monte_carlo":
         n_samples = as_count("n_samples", n_samples, low=_MIN_SAMPLES, high=MAX_SAMPLES)
         n_trajectories = as_count("n_trajectories", n_trajectories, low=0)
-        gen = np.random.default_rng(rng)
+        gen = as_generator("rng", rng)
         run: _MonteCarlo | _Analytic = _MonteCarlo(stopping, n_samples, gen)
     else:
         if n_trajectories:

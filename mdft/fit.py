@@ -18,7 +18,7 @@ import numpy as np
 
 from ._fit_errors import standard_errors
 from ._fit_params import DEFAULT_BOUNDS, PARAMETERS, Layout, check_names, resolve
-from ._validation import as_count, as_float_array, as_scalar
+from ._validation import as_count, as_float_array, as_generator, as_scalar
 from .choice_data import ChoiceData
 from .fit_result import FitResult
 from .likelihood import INFEASIBLE, Likelihood, choose_engine, quiet_model, stopping_kind
@@ -212,7 +212,7 @@ def fit(
         raise ValueError("rt_bins is given but response times are not in the likelihood")
     values, res_bounds, first = resolve(M, fitted, fixed, start, bounds,
                                         spec[0] if kind == "threshold" else None)
-    rng = np.random.default_rng(rng)
+    rng = as_generator("rng", rng)
     lik = Likelihood(data, stopping, engine, use_rt=use_rt, rt_bins=rt_bins,
                      n_samples=n_samples, seed=int(rng.integers(2**31)),
                      threshold_options=threshold_options)
@@ -232,8 +232,9 @@ def fit(
     best = out.best
     if best.fun >= INFEASIBLE:
         raise ValueError(
-            "the likelihood could not be evaluated at any start (every prediction failed); "
-            "check the bounds, the stopping rule and the data"
+            "the likelihood could not be evaluated at any start (every prediction failed; "
+            f"first: {lik.first_failure or 'no finite value'}); check the bounds, the "
+            "stopping rule, threshold_options and the data"
         )
     u_hat = best.x
     p_hat = layout.unpack(u_hat)

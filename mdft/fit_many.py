@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import as_count
+from ._validation import as_count, as_generator
 from .fit_result import FitResult, to_builtin
 
 __all__ = ["FitManyResult", "fit_many"]
@@ -361,7 +361,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         # fresh entropy, kept in the checkpoint folder so that a re-run resumes
         root = np.random.SeedSequence(None if folder is None else _root_entropy(folder))
     else:
-        root = np.random.SeedSequence(int(np.random.default_rng(rng).integers(2**63)))
+        root = np.random.SeedSequence(int(as_generator("rng", rng).integers(2**63)))
     seeds = tuple(int(c.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
                   for c in root.spawn(len(items)))
 
@@ -389,7 +389,13 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         bar = tqdm(total=n, initial=n_resumed, desc="fits", unit="fit")
     n_done = n_resumed
 
+    def save(i, res):
+        _save(folder / f"fit-{i:06d}.pkl", {"version": _CHECKPOINT_VERSION,
+                                            "fingerprint": prints[i], "key": items[i][0],
+                                            "result": res})
+
     pool, owned = _resolve_executor(executor, n_workers) if todo else (_Serial(), True)
+    futures = {}
     try:
         futures = {pool.submit(_fit_one, kwargs_list[i], seeds[i]): i for i in todo}
         for fut in cf.as_completed(futures):
@@ -407,9 +413,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
             else:
                 results[i] = res
                 if folder is not None:
-                    _save(folder / f"fit-{i:06d}.pkl", {"version": _CHECKPOINT_VERSION,
-                                                        "fingerprint": prints[i], "key": key,
-                                                        "result": res})
+                    save(i, res)
             n_done += 1
             if bar is not None:
                 bar.update(1)
@@ -419,6 +423,15 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
     finally:
         if bar is not None:
             bar.close()
+        # stopped early (an interrupt or an error): the fits not started are cancelled, and
+        # those already running finish and are saved, not thrown away
+        for fut in futures:
+            fut.cancel()
+        if folder is not None and futures:
+            cf.wait(list(futures))
+            for fut, i in futures.items():
+                if results[i] is None and not fut.cancelled() and fut.exception() is None:
+                    save(i, fut.result())
         if owned:
             pool.shutdown(wait=True, cancel_futures=True)
     for r in results:

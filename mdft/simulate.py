@@ -27,7 +27,8 @@ import numpy as np
 
 from . import _kernels
 from ._typing import ArrayLike, SeedLike
-from ._validation import MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, as_count, as_float_array, as_scalar
+from ._validation import (MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, as_count, as_float_array,
+                          as_generator, as_scalar)
 from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
 from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
@@ -413,7 +414,7 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
             f"model.P0 must lie below the threshold theta={stopping.theta:g} "
             f"(got max P0 = {np.max(model.P0):g}); the deliberation would end before it starts"
         )
-    generator = np.random.default_rng(rng)
+    generator = as_generator("rng", rng)
     states = _stream_states(generator, N_CHUNKS + 1)
     theta = stopping.theta if threshold else math.inf
     S = np.ascontiguousarray(model.S, dtype=np.float64)
@@ -602,7 +603,7 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
             f"(M spans {spread:.3g}); rescale M or lower beta"
         )
     _check_batch_growth(batch, phi1, phi2, beta, n_steps)
-    generator = np.random.default_rng(rng)
+    generator = as_generator("rng", rng)
     n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
     n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))
     states = _stream_states(generator, n_chunks)

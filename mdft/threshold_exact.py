@@ -30,7 +30,7 @@ from ._threshold_bound import decision_bound, undecided_answer, within_tolerance
 from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
-from ._validation import as_count, as_scalar
+from ._validation import as_count, as_generator, as_scalar
 from .model import MDFTModel
 from .threshold_result import ThresholdProbabilities
 
@@ -247,6 +247,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     max_states = as_count("max_states", max_states, low=10)
     if fallback not in _FALLBACKS:
         raise ValueError(f"fallback must be one of {_FALLBACKS} (got {fallback!r})")
+    if rng is not None:
+        as_generator("rng", rng)  # checked here, used only if a simulation answers
     if n_cells is not None:
         if n != 2:
             raise ValueError(

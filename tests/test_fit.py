@@ -85,6 +85,9 @@ def test_choice_data_from_shares():
         (([["a", "b"]], [[1, 1]]), {}, TypeError, "option indices"),
         (("ab", [[1, 1]]), {}, TypeError, "subsets must be a sequence"),
         (([[0, 1]], 5), {}, TypeError, "counts must be a sequence"),
+        (([[0, 1]], [[True, False]]), {}, TypeError, r"counts\[0\] must hold counts .*not booleans"),
+        (([[0, 1]], [[1e30, 3]]), {}, ValueError, r"counts\[0\] must hold counts that sum to at most 2\*\*53"),
+        (([[0, 1]], [[2**53, 1]]), {}, ValueError, "sum to at most 2\\*\\*53"),
     ],
 )
 def test_choice_data_bad_input(args, kwargs, exc, match):
@@ -305,6 +308,16 @@ def small_data():
         (dict(method="magic"), ValueError, "method must be 'auto'"),
         (dict(params="M", fixed={**FIXED_ALL, "w": [0.5, 0.5]}, bounds=dict(M=(0.0, 2.0))),
          ValueError, r"M lies outside bounds\['M'\]"),
+        (dict(params="M", fixed={**FIXED_ALL, "w": [0.5, 0.5]}, bounds=dict(M=([0, 0, 0], 5))),
+         ValueError, r"bounds\['M'\]\[0\] must be a number or an array of shape \(2, 2\)"),
+        (dict(params="M", fixed={**FIXED_ALL, "w": [0.5, 0.5]}, bounds=dict(M=3.0)),
+         ValueError, r"bounds\['M'\] must be a pair \(lower, upper\) \(got 3.0\)"),
+        (dict(params=["phi1"], fixed={"w": [0.5, 0.5], "phi2": 0.05, "beta": 12.0, "sigma2": 1.0},
+              bounds=dict(phi1=1)), ValueError, r"bounds\['phi1'\] must be a pair"),
+        (dict(params=["phi1"], fixed={"w": [0.5, 0.5], "phi2": 0.05, "beta": 12.0, "sigma2": 1.0},
+              bounds=dict(phi1=(0, 1, 2))), ValueError, r"bounds\['phi1'\] must be a pair"),
+        (dict(rng="abc"), TypeError, "rng must be None, a non-negative int seed"),
+        (dict(rng=-3), ValueError, "rng must be None, a non-negative int seed"),
     ],
 )
 def test_fit_bad_input(small_data, kwargs, exc, match):

@@ -89,6 +89,26 @@ def test_checkpoint_resumes_without_refitting(tmp_path, serial):
         mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
 
 
+def test_an_interrupted_run_keeps_the_fits_that_were_running(tmp_path, serial):
+    # two workers: when the first fit ends, another is running; an interrupt then cancels
+    # the fits not started, and the running one finishes and is saved, not thrown away
+    from concurrent.futures import ThreadPoolExecutor
+
+    folder = tmp_path / "fits"
+
+    def interrupt(*args):
+        raise KeyboardInterrupt
+
+    with ThreadPoolExecutor(max_workers=2) as pool, pytest.raises(KeyboardInterrupt):
+        mdft.fit_many(make_problems(), rng=7, executor=pool, checkpoint=folder,
+                      progress=interrupt, **COMMON)
+    saved = sorted(p.name for p in folder.glob("fit-*.pkl"))
+    assert len(saved) >= 2, saved
+    again = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          **COMMON)
+    assert again.n_resumed == len(saved) and estimates(again) == estimates(serial)
+
+
 def test_checkpoint_resumes_with_the_default_rng(tmp_path):
     # rng=None drew fresh seeds on every call, so the fingerprints of a re-run never matched
     # and an interrupted run with the default rng could not resume (ValueError)
