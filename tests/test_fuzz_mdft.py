@@ -119,6 +119,20 @@ def test_stopping_and_criteria(value):
 
 
 @FUZZ
+@given(value=st.one_of(odd, scalars, st.just(np.random.SeedSequence(1)),
+                       st.just(np.random.default_rng(1))))
+def test_rng(value):
+    # every entry point that draws resolves rng alike and names it when it cannot
+    m = model()
+    run(lambda: mdft.simulate(m, 20, stopping=mdft.FixedTime(5), rng=value), "rng")
+    run(lambda: mdft.decide(M3, W, n_steps=5, rng=value, **CANON), "rng")
+    run(lambda: mdft.mixture_choice_probabilities(m, 5, n_sequences=100, rng=value), "rng")
+    run(lambda: mdft.context_effects("similarity", stopping=mdft.FixedTime(5), n_samples=100,
+                                     rng=value), "rng")
+    run(lambda: mdft.threshold_probabilities(m.subset([0, 1]), 3.0, rng=value), "rng")
+
+
+@FUZZ
 @given(data=st.dictionaries(st.sampled_from(["M", "w", "phi1", "phi2", "beta", "S", "C",
                                              "sigma2", "P0", "labels"]),
                             st.one_of(scalars, matrices), max_size=6))
