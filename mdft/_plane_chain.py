@@ -451,25 +451,42 @@ def mean_sums(chain, occ):
     return grid, (chain.origin[0], chain.origin[1], chain.h[0], chain.h[1])
 
 
+#: A spread of the states' mean sums that moves the thresholds by at most this share of a
+#: cell is immaterial (:func:`reference_sums`).
+_SUM_SPREAD_FLOOR = 0.01
+
+
 def reference_sums(chain, occ):
-    """Reference-sum map ``(r0, r1, r2)`` and spread ``delta`` for the next pass.
+    """Reference-sum map ``(r0, r1, r2)``, spread ``delta`` for the next pass, and whether
+    the spread could be measured.
 
     A weighted least-squares fit of the states' mean sums on their positions
     (weights: occupation), and the root of the occupation-weighted mean of the
-    sum's variance within the states.
+    sum's variance within the states. That variance comes from the second moment the
+    pilot carries with ``T0`` alone, and is clipped at 0 where it comes out negative.
+    Where the walks' sums stray far from the reference sums (a starting preference whose
+    sum lies far from the sums the walks settle to) it can come out negative in every
+    state. Where the states' mean sums then still differ (their weighted standard
+    deviation, over 3, above :data:`_SUM_SPREAD_FLOOR` of the smaller cell size: the sum
+    moves the thresholds), the spread is not measured (False), as ``delta = 0`` would
+    leave the chain no slope in the sum to follow.
     """
     wx = occ[:, 0]
     good = wx > 1e-12 * max(wx.sum(), 1e-300)
     if not chain.moving or good.sum() < 3:
-        return np.array([chain.start_snext if chain.moving else 0.0, 0.0, 0.0]), 0.0
+        return np.array([chain.start_snext if chain.moving else 0.0, 0.0, 0.0]), 0.0, True
     W = wx[good]
     mean = occ[good, 1] / W
-    var = np.clip(occ[good, 2] / W - mean**2, 0.0, None)
+    raw = occ[good, 2] / W - mean**2
     X = np.c_[np.ones(W.size), chain.pos[good]]
     root = np.sqrt(W)
     coef = np.linalg.lstsq(X * root[:, None], mean * root, rcond=None)[0]
-    delta = float(np.sqrt(np.sum(W * var) / W.sum()))
-    return coef, delta
+    delta = float(np.sqrt(np.sum(W * np.clip(raw, 0.0, None)) / W.sum()))
+    if delta > 0.0:
+        return coef, delta, True
+    centre = np.sum(W * mean) / W.sum()
+    moves = math.sqrt(np.sum(W * (mean - centre) ** 2) / W.sum()) / 3.0
+    return coef, delta, bool(moves <= _SUM_SPREAD_FLOOR * min(chain.h))
 
 
 def solve_moments(chain, tol, max_iter, krylov):

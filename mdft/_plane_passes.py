@@ -119,6 +119,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         return chain, out, cut
 
     def pilot(k):
+        unmeasured = False
         for i in range(PILOT_PASSES):
             chain, out, cut = fitting_pass(k, PILOT_STEPS, 1e-6)
             occ, steps = out[4], out[2]
@@ -130,13 +131,21 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 state["cut"] = True
             if steps == 0:
                 break  # nothing to fit: the reference sums and spread stay as they were
-            state["ref"], state["delta"] = reference_sums(chain, occ)
+            state["ref"], state["delta"], measured = reference_sums(chain, occ)
+            # judged on the last pilot, which starts from the first one's fit
+            unmeasured = not measured and not cut
             if i == 0 and cheaper is not None:
                 # the first pilot's answer tells what simulating would cost (a cut pilot's
                 # does not: the first trials do)
                 state["simulated"] = ask_cheaper(chain, out, cut)
                 if state["simulated"] is not None:
                     return
+        if unmeasured:
+            raise TooManyStates(
+                "the pilots could not measure the spread of the summed preference within the "
+                "states (its variance came out negative: the walks' sums stray far from the "
+                "sums the chain is linearised about, as where the starting preference P0 sums "
+                "far from where the walks' sums settle)")
         if limit:
             # a cut pilot's occupation stops short of where the walks go: every row
             state["near"] = None if cut else near_occupied(chain, occ)

@@ -7,7 +7,7 @@ import pytest
 
 from mdft import MDFTModel, threshold_probabilities
 
-from threshold_models import SETS, drawn
+from threshold_models import SETS, assert_within_stated_error, drawn
 
 
 def runaway_pilot_model():
@@ -200,3 +200,38 @@ def test_an_unstable_moment_closure_is_refused_with_its_reason():
     with pytest.raises(ValueError, match="moment closure of the summed preference is "
                                          "unstable for this model"):
         threshold_probabilities(model, 41.98, max_steps=3000, fallback="raise")
+
+
+# a starting preference that sums to -10.9 (the sum then settles towards 0 over a
+# deliberation of about 15 steps): the second pilot's variance of the sum within the states
+# came out negative in every state, so delta was 0 and the chain followed no slope in the
+# sum; its mean times were 10-12 % long while it estimated 0.17 %
+FAR_START = dict(M=[[3.0479509925572756, 3.7574602279408804, 0.5293200946537767],
+                    [3.9534130089023796, 2.1933438682917794, 1.6957587746545797],
+                    [2.057188375016216, 1.3167817477039536, 2.7690832567078076]],
+                 w=[0.09201724330555719, 0.4146007378183366, 0.4933820188761062],
+                 phi1=0.06537419532956461, phi2=0.020263047737633898, beta=2.5277918821075884,
+                 sigma2=1.9748398971177674,
+                 P0=[-4.678987126613378, -4.773385598558563, -1.4459075977183329])
+FAR_START_THETA = 6.1725443131374655
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_a_spread_of_the_sum_the_pilots_cannot_measure_is_refused(scale):
+    params = dict(FAR_START, P0=[scale * p for p in FAR_START["P0"]])
+    model = drawn(**params)
+    with pytest.raises(ValueError, match="could not measure the spread of the summed "
+                                         "preference"):
+        threshold_probabilities(model, FAR_START_THETA, fallback="raise")
+    res = threshold_probabilities(model, FAR_START_THETA)
+    assert res.engine == "simulation"
+    assert_within_stated_error(res, model, FAR_START_THETA, 200_000, 21)
+
+
+def test_a_start_whose_sum_the_pilots_can_follow_is_answered_by_the_chain():
+    # a quarter of that start: the pilots measure a spread, and the chain answers within its
+    # stated error
+    model = drawn(**dict(FAR_START, P0=[0.25 * p for p in FAR_START["P0"]]))
+    res = threshold_probabilities(model, FAR_START_THETA, fallback="raise")
+    assert res.engine == "plane"
+    assert_within_stated_error(res, model, FAR_START_THETA, 200_000, 22)
