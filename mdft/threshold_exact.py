@@ -30,7 +30,7 @@ from ._threshold_bound import decision_bound, undecided_answer, within_tolerance
 from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
-from ._validation import as_count, as_generator, as_scalar
+from ._validation import MAX_STEPS, MAX_THETA, as_count, as_generator, as_scalar
 from .model import MDFTModel
 from .threshold_result import ThresholdProbabilities
 
@@ -62,6 +62,10 @@ _FIRST_HALF_REACH = 10.0
 # first comparison counts as if the error fell only in proportion to it: the change is
 # scaled by 1 / (sqrt(2) - 1). Later comparisons are taken as they are.
 _FIRST_PAIR_FACTOR = 1.0 / (REFINE - 1.0)
+# Two options: the lattice's first comparison (of n / 2 and n cells) counts as if the error
+# fell by only sqrt(2) per doubling; with a start away from 0 or a moving sum it fell by
+# 1.5 there, and the plain change was half the error of the finer answer.
+_FIRST_DOUBLING_FACTOR = 1.0 / (math.sqrt(2.0) - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
 # with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 14 (17 before
@@ -98,11 +102,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         more options, no noise, another contrast and a feedback matrix with a
         column sum above 1 are simulated (``fallback="simulation"``).
     theta : float
-        Threshold, > 0: option ``i`` is chosen at the first step where
+        Threshold, > 0 and at most 1e300: option ``i`` is chosen at the first step where
         ``P_i >= theta``; if several preferences reach it at the same step,
         the largest is chosen (as :func:`mdft.simulate` does).
     max_steps : int, default 10_000
-        Step limit of ``method="propagate"``; mass not absorbed by then is
+        Step limit of ``method="propagate"`` (at most 10,000,000, as for
+        ``mdft.Threshold``); mass not absorbed by then is
         ``p_undecided``. Ignored by ``method="solve"``.
     atol : float, default 1e-3
         Tolerance of the estimated error of the choice probabilities (and of
@@ -235,10 +240,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     if not isinstance(model, MDFTModel):
         raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
     n = model.n_options
-    theta = as_scalar("theta", theta, low=0.0, low_inclusive=False)
+    theta = as_scalar("theta", theta, low=0.0, low_inclusive=False, high=MAX_THETA)
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
-    max_steps = as_count("max_steps", max_steps, low=1)
+    max_steps = as_count("max_steps", max_steps, low=1, high=MAX_STEPS)
     atol = as_scalar("atol", atol, low=0.0, low_inclusive=False, high=0.5)
     rt_rtol = as_scalar("rt_rtol", rt_rtol, low=0.0, low_inclusive=False, high=0.5)
     tol = as_scalar("tol", tol, low=0.0, low_inclusive=False, high=0.1)
@@ -348,10 +353,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if coarse is None:
             continue
         err_p, err_rt = error_estimate(fine, coarse)
-        if fine.engine == "plane" and (first_pair or half):
+        if first_pair or half:
             # the coarsest grid is not yet in the asymptotic range; a half step is a quarter
             # of a doubling away from its partner
-            factor = _HALF_STEP_FACTOR if half else _FIRST_PAIR_FACTOR
+            factor = _HALF_STEP_FACTOR if half else (
+                _FIRST_PAIR_FACTOR if fine.engine == "plane" else _FIRST_DOUBLING_FACTOR)
             err_p, err_rt = factor * err_p, factor * err_rt
         grid_p, grid_rt = err_p, err_rt
         err_p += tails[0][0] + tails[1][0]

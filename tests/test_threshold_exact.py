@@ -532,6 +532,9 @@ def test_bad_resolution_tolerances_and_limits():
         threshold_probabilities(model, 5.0, max_steps=0)
     with pytest.raises(TypeError, match="max_steps must be an integer"):
         threshold_probabilities(model, 5.0, max_steps=1e3)
+    # as for mdft.Threshold: a step limit beyond it would allocate rt_pmf of many gigabytes
+    with pytest.raises(ValueError, match=r"max_steps must be an integer <= 10,000,000"):
+        threshold_probabilities(model, 5.0, max_steps=10**9)
     with pytest.raises(ValueError, match="atol must be > 0"):
         threshold_probabilities(model, 5.0, atol=0.0)
     with pytest.raises(ValueError, match="rt_rtol must be <= 0.5"):
@@ -799,3 +802,20 @@ def test_a_mean_time_below_one_step_is_unresolved_and_its_change_counts_in_full(
         _, err_rt = _threshold_solve.error_estimate(answer([5e-4, 0.3, 0.5], [30.0, 10.0, 20.0]),
                                                     answer([0.0, 0.3, 0.5], [np.nan, 10.0, 20.0]))
         assert err_rt == pytest.approx(0.05)
+
+
+def test_binary_first_comparison_covers_a_slowly_falling_error():
+    # a start away from 0 and a short step limit: the lattice's error fell by only about 1.5
+    # per doubling of the cells, and the plain change from half the cells was half the error
+    # of the finer answer (estimate 0.00069, error 0.0015 in p_undecided against 5e6 trials)
+    model = MDFTModel([[2.6336142183248152, 2.463607615502124],
+                       [2.1292178822391237, 3.2184844625651]],
+                      [0.6132106154745479, 0.38678938452545225], phi1=0.0075132936742795635,
+                      phi2=0.022549585985183397, beta=12.129460218834861,
+                      sigma2=3.440657375503001, P0=[-3.132205413327087, 0.26586634314201274])
+    theta = 33.61323821911933
+    res = threshold_probabilities(model, theta, max_steps=102)
+    fine = threshold_probabilities(model, theta, max_steps=102, n_cells=1280)
+    assert res.engine == "lattice" and res.error_probabilities <= 1e-3
+    assert abs(res.p_undecided - fine.p_undecided) <= res.error_probabilities
+    assert np.max(np.abs(res.probabilities - fine.probabilities)) <= res.error_probabilities
