@@ -717,6 +717,9 @@ def _one_decision(state, M, cuts, phi1, phi2, beta, noise_sd, n_steps, S, CM, P,
             P_next[i] = acc
         for i in range(n):
             P[i] = P_next[i]
+    for i in range(n):
+        if not np.isfinite(P[i]):
+            return -1  # the preferences overflowed: no choice (the wrapper raises)
     return argmax_random_ties(P, state)
 
 

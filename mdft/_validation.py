@@ -15,6 +15,9 @@ import numpy as np
 #: terabytes of memory or years of computation, far above any use in the literature.
 MAX_OPTIONS = 1_000
 MAX_STEPS = 10_000_000
+#: Largest threshold: the preference that first passes it is still a finite float unless one
+#: step multiplies it by more than about 1e8.
+MAX_THETA = 1e300
 MAX_SAMPLES = 100_000_000
 
 
@@ -30,6 +33,8 @@ def as_float_array(name: str, value, *, ndim: int | None = None, shape=None) -> 
 
     ``shape`` may hold ``None`` for a free dimension.
     """
+    if np.iscomplexobj(value):
+        raise TypeError(f"{name} must be an array of real numbers (got complex values)")
     try:
         arr = np.array(value, dtype=np.float64, order="C", copy=True)
     except OverflowError:
@@ -66,6 +71,8 @@ def as_scalar(
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
         raise TypeError(f"{name} must be a real number (got {value!r})")
     arr = np.asarray(value)
+    if np.iscomplexobj(arr):
+        raise TypeError(f"{name} must be a real number (got {value!r})")
     if arr.ndim != 0:
         raise TypeError(f"{name} must be a scalar (got {_describe(value)})")
     try:

@@ -27,8 +27,8 @@ import numpy as np
 
 from . import _kernels
 from ._typing import ArrayLike, SeedLike
-from ._validation import (MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, as_count, as_float_array,
-                          as_generator, as_scalar)
+from ._validation import (MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, MAX_THETA, as_count,
+                          as_float_array, as_generator, as_scalar)
 from .model import MDFTModel, warn_if_growing
 from ._repr import compact_repr
 from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
@@ -103,7 +103,8 @@ class Threshold:
     Parameters
     ----------
     theta : float
-        Preference threshold, finite and > 0.
+        Preference threshold, > 0 and at most 1e300 (``MAX_THETA``: the preference that
+        first passes it is still finite, so the choice is made among numbers).
     max_steps : int, default 10_000
         Longest deliberation, at most 10,000,000 (``MAX_STEPS``). A trial that has not reached the threshold after
         ``max_steps`` steps is *undecided*: it is counted in
@@ -127,7 +128,7 @@ class Threshold:
 
     def __post_init__(self):
         object.__setattr__(self, "theta", as_scalar("theta", self.theta, low=0.0,
-                                                    low_inclusive=False))
+                                                    low_inclusive=False, high=MAX_THETA))
         object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps,
                                                        high=MAX_STEPS))
 
@@ -617,6 +618,12 @@ def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
         else:
             for c in _nonempty_chunks(bounds):
                 _kernels.decide_chunk(states[c], bounds[c], bounds[c + 1], *args, out)
+    if np.any(out < 0):
+        raise ValueError(
+            f"preferences overflow over n_steps={n_steps} steps in {int(np.sum(out < 0))} of "
+            f"{n_decisions} decisions (they are not finite, so argmax P(T) means nothing); "
+            "lower n_steps or phi2, raise phi1, or rescale M"
+        )
     return int(out[0]) if single else out
 
 

@@ -627,3 +627,36 @@ def test_decide_refuses_overflow_like_simulate():
     assert mdft.decide(M, [0.5, 0.5], n_steps=500, rng=0, **kw) in (0, 1, 2)
     ok = dict(phi1=0.022, phi2=0.05, beta=12.0)
     assert mdft.decide(M, [0.5, 0.5], n_steps=1000, rng=0, **ok) in (0, 1, 2)
+
+
+def test_decide_refuses_preferences_that_overflow_below_the_growth_check():
+    # rho(S) = 2 over 900 steps stays below the growth check (900 ln 2 = 624 < 690), but M
+    # spans 1e60: the preferences overflow, and a choice among them would mean nothing
+    M = [[0.0, 1e60], [1e60, 0.0]]
+    with pytest.raises(ValueError, match=r"preferences overflow over n_steps=900 steps in 40 "
+                                         r"of 40 decisions"):
+        mdft.decide([M] * 40, [0.5, 0.5], phi1=1.0, phi2=3.0, beta=1.0, n_steps=900, rng=1)
+
+
+def test_complex_input_is_refused_not_cut_to_its_real_part():
+    M = np.array([[1 + 5j, 3], [3, 1]])
+    with pytest.raises(TypeError, match="M must be an array of real numbers"):
+        mdft.MDFTModel(M, [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+    with pytest.raises(TypeError, match="w must be an array of real numbers"):
+        mdft.MDFTModel([[1, 3], [3, 1]], np.array([0.5 + 1j, 0.5 - 1j]), phi1=0.022,
+                       phi2=0.05, beta=12.0)
+    with pytest.raises(TypeError, match="must be an array of real numbers"):
+        mdft.decide(M, [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0, n_steps=5, rng=0)
+    with pytest.raises(TypeError, match="phi1 must be a real number"):
+        mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=np.complex128(0.02), phi2=0.05,
+                       beta=12.0)
+
+
+def test_a_threshold_near_the_largest_float_is_refused():
+    # a preference could pass theta = 1.7e308 as infinity; the threshold stops at 1e300
+    with pytest.raises(ValueError, match=r"theta must be <= 1e\+300 \(got 1.7e\+308\)"):
+        mdft.Threshold(1.7e308)
+    model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5], phi1=0.022, phi2=0.05, beta=12.0)
+    with pytest.raises(ValueError, match=r"theta must be <= 1e\+300"):
+        mdft.threshold_probabilities(model, 1e301)
+    assert mdft.Threshold(1e300).theta == 1e300
