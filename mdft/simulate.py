@@ -671,8 +671,9 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
     (:func:`mdft._kernels.block_table`), ``base = S^T P0`` and ``L`` (n, r)
     satisfies ``L L^T = sigma2 sum_{k<T} S^k C C^T S^kT``; with fewer than 4
     options the three are padded with zeros to width 4. Returns None when
-    the table would be too large (then the step-by-step kernel runs instead);
-    raises ``ValueError`` when the components of ``P(T)`` overflow.
+    the table would be too large, or the summed noise covariance overflows while the
+    preferences do not (then the step-by-step kernel runs instead); raises ``ValueError``
+    when the components of ``P(T)`` overflow.
     """
     n, J = CM.shape
     if n_steps * J * n > _MAX_TABLE_SIZE:
@@ -686,7 +687,11 @@ def _fixed_time_shortcut(S, CM, C, P0, sigma2, n_steps):
     block_size = _block_size(n_steps, J, n)
     with np.errstate(over="ignore", invalid="ignore"):
         blocks = _kernels.block_table(table, block_size)
-    if not (np.isfinite(blocks).all() and np.isfinite(base).all() and np.isfinite(L).all()):
+    if np.isfinite(blocks).all() and np.isfinite(base).all() and not np.isfinite(L).all():
+        # the summed noise covariance grows like rho**(2 n_steps) and overflows before the
+        # preferences do (like rho**n_steps): the step-by-step kernel runs instead
+        return None
+    if not (np.isfinite(blocks).all() and np.isfinite(base).all()):
         raise ValueError(
             f"preferences overflow over n_steps={n_steps} steps (the feedback matrix S has "
             f"spectral radius {np.max(np.abs(np.linalg.eigvals(S))):.6g}); lower n_steps or "

@@ -660,3 +660,15 @@ def test_a_threshold_near_the_largest_float_is_refused():
     with pytest.raises(ValueError, match=r"theta must be <= 1e\+300"):
         mdft.threshold_probabilities(model, 1e301)
     assert mdft.Threshold(1e300).theta == 1e300
+
+
+def test_a_noise_covariance_that_overflows_before_the_preferences_is_stepped():
+    # rho(S) = 1.0089 over 50,000 steps: the preferences reach about 1e193 (finite), their
+    # summed noise covariance about 1e386 (not): simulate steps instead of refusing, as
+    # decide answers
+    model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5], phi1=0.022, phi2=0.05,
+                           beta=12.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        res = mdft.simulate(model, 200, stopping=mdft.FixedTime(50_000), rng=0)
+    assert res.method == "step-by-step" and res.counts.sum() == 200
