@@ -3,8 +3,9 @@
 :func:`multistart` minimises an objective over ``[0, 1]^k``:
 
 1. a scrambled Sobol screen of the cube (the coarse global search) ranks candidate starts;
-2. local optimisations (L-BFGS-B for smooth objectives, bounded Nelder-Mead otherwise) run
-   from the given first start and from the best, mutually distant screen points;
+2. local optimisations (L-BFGS-B for smooth objectives, continued in small boxes where it
+   stops on a slope; bounded Nelder-Mead otherwise) run from the given first start, the
+   best screen point and the best, mutually distant other screen points;
 3. the best optimum must be reached by at least two starts (within ``agree_tol``); if it is
    not, up to ``n_confirm`` further starts from the next best distant screen points try to
    reach it (or better). The best screen point is always a start, so no screened point is
