@@ -33,7 +33,11 @@ def as_float_array(name: str, value, *, ndim: int | None = None, shape=None) -> 
 
     ``shape`` may hold ``None`` for a free dimension.
     """
-    if np.iscomplexobj(value):
+    try:
+        complex_values = np.iscomplexobj(value)
+    except (TypeError, ValueError):  # ragged or not numbers: the conversion below says so
+        complex_values = False
+    if complex_values:
         raise TypeError(f"{name} must be an array of real numbers (got complex values)")
     try:
         arr = np.array(value, dtype=np.float64, order="C", copy=True)

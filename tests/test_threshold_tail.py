@@ -275,7 +275,8 @@ def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
     ref, delta = np.array([float(np.sum(model.P0)), 0.0, 0.0]), 0.5
     for _ in range(2):  # the reference sums as the library's pilots fit them
         pilot = build_moment_chain(model, theta, 2.0, ref, delta, 30_000)
-        ref, delta = reference_sums(pilot, propagate_moments(pilot, 1000, 1e-6, second=True)[4])
+        ref, delta, _ = reference_sums(pilot, propagate_moments(pilot, 1000, 1e-6,
+                                                                second=True)[4])
     chain = build_moment_chain(model, theta, 1.41, ref, delta, 30_000)
     every = propagate_moments(chain, 10_000, -np.inf)
     stopped = propagate_moments(chain, 10_000, 1e-14)
