@@ -45,7 +45,7 @@ MAX_COUNT = 2**53
 def _as_counts(name, value, size):
     try:
         raw = np.asarray(value)
-        arr = np.asarray(value, dtype=np.float64)
+        arr = raw.astype(np.float64)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"{name} must be a sequence of counts (got {value!r})") from exc
     if raw.dtype == np.bool_:

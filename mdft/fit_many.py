@@ -405,9 +405,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
                 res = fut.result()
             except Exception as exc:
                 if on_error == "raise":
-                    for other in futures:
-                        other.cancel()
-                    raise
+                    raise  # the fits not started are cancelled below
                 errors[key] = f"{type(exc).__name__}: {exc}"
                 res = None
             else:

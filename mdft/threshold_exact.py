@@ -61,11 +61,10 @@ _FIRST_HALF_REACH = 10.0
 # often outside the range where the error falls with the square of the cell size, so the
 # first comparison counts as if the error fell only in proportion to it: the change is
 # scaled by 1 / (sqrt(2) - 1). Later comparisons are taken as they are.
+# The two-option lattice's first comparison (of n / 2 and n cells, or n and 2 n where the sum
+# moves) counts alike, as if the error fell by only sqrt(2) per doubling: with a start away
+# from 0 it fell by 1.5 there, and the plain change was half the error of the finer answer.
 _FIRST_PAIR_FACTOR = 1.0 / (REFINE - 1.0)
-# Two options: the lattice's first comparison (of n / 2 and n cells) counts as if the error
-# fell by only sqrt(2) per doubling; with a start away from 0 or a moving sum it fell by
-# 1.5 there, and the plain change was half the error of the finer answer.
-_FIRST_DOUBLING_FACTOR = 1.0 / (math.sqrt(2.0) - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
 # with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 14 (17 before
@@ -356,8 +355,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if first_pair or half:
             # the coarsest grid is not yet in the asymptotic range; a half step is a quarter
             # of a doubling away from its partner
-            factor = _HALF_STEP_FACTOR if half else (
-                _FIRST_PAIR_FACTOR if fine.engine == "plane" else _FIRST_DOUBLING_FACTOR)
+            factor = _HALF_STEP_FACTOR if half else _FIRST_PAIR_FACTOR
             err_p, err_rt = factor * err_p, factor * err_rt
         grid_p, grid_rt = err_p, err_rt
         err_p += tails[0][0] + tails[1][0]
