@@ -224,7 +224,8 @@ def resolve(M, fitted, fixed, start, bounds, theta=None):
         if k not in fitted:
             continue
         lo, hi = _pair(f"bounds[{k!r}]", bounds.get(k, DEFAULT_BOUNDS[k]))
-        lo = as_scalar(f"bounds[{k!r}][0]", lo, low=0.0)
+        # a threshold of 0 decides at once: theta's range is open at 0
+        lo = as_scalar(f"bounds[{k!r}][0]", lo, low=0.0, low_inclusive=k != "theta")
         hi = as_scalar(f"bounds[{k!r}][1]", hi)
         if not hi > lo:
             raise ValueError(f"bounds[{k!r}] must satisfy lower < upper (got ({lo}, {hi}))")

@@ -12,6 +12,7 @@ See ``docs/fitting.md`` for the parametrisation, identifiability and the decisio
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 
 import numpy as np
@@ -21,7 +22,9 @@ from ._fit_params import DEFAULT_BOUNDS, PARAMETERS, Layout, check_names, resolv
 from ._validation import as_count, as_float_array, as_generator, as_scalar
 from .choice_data import ChoiceData
 from .fit_result import FitResult
-from .likelihood import INFEASIBLE, Likelihood, choose_engine, quiet_model, stopping_kind
+from .likelihood import (INFEASIBLE, Likelihood, check_threshold_options, choose_engine,
+                         quiet_model, stopping_kind)
+from .model import GROWTH_LIMIT, REFERENCE_STEPS, growth_factor
 from .optimise import multistart
 
 __all__ = ["ChoiceData", "FitConvergenceWarning", "FitResult", "fit", "DEFAULT_BOUNDS"]
@@ -29,6 +32,11 @@ __all__ = ["ChoiceData", "FitConvergenceWarning", "FitResult", "fit", "DEFAULT_B
 
 class FitConvergenceWarning(RuntimeWarning):
     """The fit may not have found the maximum of the likelihood (see ``FitResult.message``)."""
+
+
+#: ``quiet.on`` set in a thread: its fits keep their convergence verdict in the result and
+#: do not warn (``fit_many``'s workers; ``warnings.catch_warnings`` is not thread-safe).
+quiet = threading.local()
 
 
 def fit(
@@ -122,7 +130,9 @@ def fit(
         optimiser; ask for it explicitly with ``"threshold_exact"``). Fixed time always uses
         the closed form.
     threshold_options : dict, optional
-        Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``n_cells``).
+        Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``atol``), for
+        the ``"threshold_exact"`` engine only: given with another engine, or with a name
+        that is not such an argument, it raises ``ValueError``.
 
     Returns
     -------
@@ -201,6 +211,7 @@ def fit(
         )
     kind, spec = stopping_kind(stopping)
     engine = choose_engine(kind, method, data.subsets)
+    threshold_options = check_threshold_options(threshold_options, engine)
     use_rt = bool(response_times) and data.has_response_times and kind == "threshold"
     if response_times is True and not use_rt:
         raise ValueError(
@@ -249,13 +260,26 @@ def fit(
         problems.append(
             f"{', '.join(on_bound)} on a bound of its range (widen bounds= if the range allows)"
         )
-    converged = out.converged and not lik.last_warnings
+    model = quiet_model(p_hat["M"], p_hat)
+    horizon = spec if kind == "fixed" else None
+    growth = growth_factor(model.spectral_radius, REFERENCE_STEPS if horizon is None else horizon)
+    if growth > GROWTH_LIMIT:
+        # the likelihood of such a model says little: its preferences run away along S's
+        # leading direction, whatever the other parameters are
+        problems.append(
+            f"the fitted model's feedback matrix S is unstable (spectral radius "
+            f"{model.spectral_radius:.4g}: preferences can grow by a factor of {growth:.3g} over "
+            f"{'the' if horizon else 'a reference deliberation of'} "
+            f"{REFERENCE_STEPS if horizon is None else horizon} steps); lower phi2 (its bound "
+            "or fixed value) or raise phi1"
+        )
+    converged = out.converged and not lik.last_warnings and growth <= GROWTH_LIMIT
     message = best.message if not problems else "; ".join(problems)
     if lik.n_failed:
         # reported, not fatal: corners of the box where preferences overflow are common
         message += (f"; {lik.n_failed} of {lik.n_evaluations} likelihood evaluations failed "
                     f"and counted as impossible (first: {lik.first_failure})")
-    if not converged:
+    if not converged and not getattr(quiet, "on", False):
         warnings.warn(
             f"the fit may not have found the maximum: {message}; raise n_starts or max_iter, "
             "or check the bounds",
@@ -290,7 +314,7 @@ def fit(
         mse=float(sq.mean()),
         engine=engine,
         stopping=stopping,
-        model=quiet_model(p_hat["M"], p_hat),
+        model=model,
         n_agree=out.n_agree,
         on_bound=on_bound,
         likelihood=lik.label,

@@ -12,25 +12,29 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import hashlib
+import inspect
 import logging
 import multiprocessing
+import numbers
 import os
 import pickle
 import tempfile
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._fit_params import PARAMETERS, check_names
 from ._validation import as_count, as_generator
+from .likelihood import stopping_kind
 from .fit_result import FitResult, to_builtin
 
 __all__ = ["FitManyResult", "fit_many"]
 
 logger = logging.getLogger(__name__)
 
-_CHECKPOINT_VERSION = 1
+#: 2: fingerprints of the settings in one spelling (version 1 took them as written).
+_CHECKPOINT_VERSION = 2
 #: Where a checkpoint folder keeps the root entropy of a run with ``rng=None``.
 _ENTROPY_FILE = "root-entropy.txt"
 
@@ -144,12 +148,14 @@ class FitManyResult:
 
 # ---------------------------------------------------------------- workers
 def _fit_one(kwargs, seed):
-    """Run one fit (in a worker); convergence warnings are in the result, not re-raised."""
-    from .fit import FitConvergenceWarning, fit
+    """Run one fit (in a worker); its convergence verdict is in the result, not warned."""
+    from .fit import fit, quiet
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FitConvergenceWarning)
+    quiet.on = True  # per thread: a thread executor's other fits and the caller still warn
+    try:
         return fit(**kwargs, rng=seed)
+    finally:
+        quiet.on = False
 
 
 def _init_worker(n_threads):
@@ -163,21 +169,57 @@ def _init_worker(n_threads):
 
 
 class _Serial(cf.Executor):
-    """Runs each submitted call at once in the calling process."""
+    """Runs each submitted call at once in the calling process (an interrupt propagates)."""
 
     def submit(self, fn, /, *args, **kwargs):
         future = cf.Future()
         try:
             future.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller via the future
+        except Exception as exc:  # noqa: BLE001 - handed to the caller via the future
             future.set_exception(exc)
         return future
 
 
 # ---------------------------------------------------------------- checkpoint
+def _canonical(value):
+    """``value`` in one spelling: mappings sorted by key, numbers and arrays of numbers as
+    float64 arrays, other sequences as tuples (so that ``[0.5, 1]`` and ``(0.5, 1.0)``, or
+    two orders of the same ``fixed``, give the same fingerprint)."""
+    if isinstance(value, dict):
+        return ("dict", tuple(sorted((str(k), _canonical(v)) for k, v in value.items())))
+    if isinstance(value, (str, bytes, bool)) or value is None:
+        return value
+    if isinstance(value, (numbers.Number, list, tuple, np.ndarray)):
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            return ("seq", tuple(_canonical(v) for v in value))
+        return ("array", arr.shape, arr.tobytes())
+    return value
+
+
+def _fit_arguments(kwargs):
+    """The arguments of :func:`mdft.fit` that ``kwargs`` give, defaults filled in, in one
+    spelling; raises ``TypeError`` for a name that is not one of fit's arguments."""
+    from .fit import fit
+
+    args = inspect.signature(fit).bind(**kwargs)
+    args.apply_defaults()
+    out = dict(args.arguments)
+    try:
+        out["stopping"] = stopping_kind(out["stopping"])
+        out["params"] = tuple(k for k in PARAMETERS if k in check_names("params", out["params"]))
+    except (KeyError, TypeError, ValueError):
+        pass  # invalid: fit will say so
+    return out
+
+
 def _fingerprint(kwargs, seed):
-    blob = pickle.dumps((sorted((k, kwargs[k]) for k in kwargs if k != "data"),
-                         kwargs.get("data"), int(seed)), protocol=4)
+    """What a checkpoint file must have been made from: the problem, the settings and the
+    seed, the same for settings spelt differently that give the same fit."""
+    args = _fit_arguments(kwargs)
+    data = args.pop("data", None)
+    blob = pickle.dumps((_canonical(args), data, int(seed)), protocol=4)
     return hashlib.sha256(blob).hexdigest()
 
 
@@ -203,10 +245,22 @@ def _save(path, payload):
 
 def _load(path, fingerprint):
     """The stored result of ``path`` if it was made from the same problem, else raise."""
-    with open(path, "rb") as fh:
-        payload = pickle.load(fh)
-    if not isinstance(payload, dict) or payload.get("version") != _CHECKPOINT_VERSION:
-        raise ValueError(f"checkpoint file {path} is not a fit_many checkpoint of this version")
+    try:
+        with open(path, "rb") as fh:
+            payload = pickle.load(fh)
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError,
+            TypeError, ValueError) as exc:
+        raise ValueError(f"checkpoint file {path} cannot be read ({type(exc).__name__}: "
+                         f"{exc}); delete it to fit that problem again") from exc
+    if not isinstance(payload, dict) or "version" not in payload:
+        raise ValueError(f"checkpoint file {path} is not a fit_many checkpoint; use a new "
+                         "checkpoint folder or delete it")
+    if payload["version"] != _CHECKPOINT_VERSION:
+        raise ValueError(
+            f"checkpoint file {path} was written by another version of fit_many (format "
+            f"{payload['version']}, this one reads {_CHECKPOINT_VERSION}); use a new checkpoint "
+            "folder or delete it"
+        )
     if payload["fingerprint"] != fingerprint:
         raise ValueError(
             f"checkpoint file {path} holds the fit of a different problem or settings; "
@@ -259,28 +313,36 @@ def _problem_list(problems):
     return items
 
 
+def _usable_cores():
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+
+
 def _resolve_executor(executor, n_workers):
-    """``(executor, owned)``: the executor to submit to and whether fit_many must shut it down."""
+    """``(executor, owned, slots)``: the executor to submit to, whether fit_many must shut it
+    down, and how many fits to keep submitted at a time (one per worker where that is
+    known), so that every fit submitted is running and none waits in a queue."""
     if executor is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-            os.cpu_count() or 1)
-        n = n_workers or max(1, min(cores, 8))
+        n = n_workers or max(1, min(_usable_cores(), 8))
         ctx = multiprocessing.get_context(
             "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn")
         pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
                                       initargs=(1,))
-        return pool, True
+        return pool, True, n
     if isinstance(executor, str):
         if executor != "serial":
             raise ValueError(
                 f"executor must be None, 'serial', a concurrent.futures.Executor or a "
                 f"dask.distributed Client (got {executor!r})"
             )
-        return _Serial(), True
-    if hasattr(executor, "get_executor"):  # a dask.distributed Client
-        return executor.get_executor(), False
-    if isinstance(executor, cf.Executor) or hasattr(executor, "submit"):
-        return executor, False
+        return _Serial(), True, 1
+    if hasattr(executor, "get_executor") and hasattr(executor, "nthreads"):  # a Dask Client
+        threads = sum(executor.nthreads().values())
+        return executor.get_executor(), False, threads if threads > 0 else _usable_cores()
+    if isinstance(executor, cf.Executor):
+        workers = getattr(executor, "_max_workers", None)  # the standard library's pools
+        slots = workers if isinstance(workers, int) and workers > 0 else _usable_cores()
+        return executor, False, slots
     raise TypeError(
         "executor must be None, 'serial', a concurrent.futures.Executor or a dask.distributed "
         f"Client (got {type(executor).__name__})"
@@ -369,6 +431,15 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
     results = [None] * n
     errors = {}
     kwargs_list = [{**common, **prob} for _, prob in items]
+    for (key, _), kw in zip(items, kwargs_list):
+        try:
+            _fit_arguments(kw)
+        except TypeError as exc:
+            raise TypeError(
+                f"problems[{key!r}] with the common keywords: {exc}; fit_many's own "
+                "arguments are executor, n_workers, progress, checkpoint, rng and on_error, "
+                "and every other keyword must be an argument of mdft.fit"
+            ) from None
     prints = [_fingerprint(kw, s) for kw, s in zip(kwargs_list, seeds)]
     todo = []
     n_resumed = 0
@@ -394,40 +465,50 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
                                             "fingerprint": prints[i], "key": items[i][0],
                                             "result": res})
 
-    pool, owned = _resolve_executor(executor, n_workers) if todo else (_Serial(), True)
-    futures = {}
+    pool, owned, slots = (_resolve_executor(executor, n_workers) if todo
+                          else (_Serial(), True, 1))
+    waiting = iter(todo)
+    running = {}  # at most `slots` fits submitted at a time: none waits in a queue
+
+    def submit_more():
+        for i in waiting:
+            running[pool.submit(_fit_one, kwargs_list[i], seeds[i])] = i
+            if len(running) >= slots:
+                return
+
     try:
-        futures = {pool.submit(_fit_one, kwargs_list[i], seeds[i]): i for i in todo}
-        for fut in cf.as_completed(futures):
-            i = futures[fut]
-            key = items[i][0]
-            try:
-                res = fut.result()
-            except Exception as exc:
-                if on_error == "raise":
-                    raise  # the fits not started are cancelled below
-                errors[key] = f"{type(exc).__name__}: {exc}"
-                res = None
-            else:
-                results[i] = res
-                if folder is not None:
-                    save(i, res)
-            n_done += 1
-            if bar is not None:
-                bar.update(1)
-            elif callable(progress):
-                progress(n_done, n, key, res)
-            logger.debug("fit %s done (%d of %d)", key, n_done, n)
+        submit_more()
+        while running:
+            done, _ = cf.wait(list(running), return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                i = running.pop(fut)
+                key = items[i][0]
+                try:
+                    res = fut.result()
+                except Exception as exc:
+                    if on_error == "raise":
+                        raise  # the fits still running are saved below
+                    errors[key] = f"{type(exc).__name__}: {exc}"
+                    res = None
+                else:
+                    results[i] = res
+                    if folder is not None:
+                        save(i, res)
+                n_done += 1
+                if bar is not None:
+                    bar.update(1)
+                elif callable(progress):
+                    progress(n_done, n, key, res)
+                logger.debug("fit %s done (%d of %d)", key, n_done, n)
+            submit_more()
     finally:
         if bar is not None:
             bar.close()
-        # stopped early (an interrupt or an error): the fits not started are cancelled, and
-        # those already running finish and are saved, not thrown away
-        for fut in futures:
-            fut.cancel()
-        if folder is not None and futures:
-            cf.wait(list(futures))
-            for fut, i in futures.items():
+        # stopped early (an interrupt or an error): no further fit is submitted, and those
+        # already running (at most one per worker) finish and are saved, not thrown away
+        if folder is not None and running:
+            cf.wait(list(running))
+            for fut, i in running.items():
                 if results[i] is None and not fut.cancelled() and fut.exception() is None:
                     save(i, fut.result())
         if owned:

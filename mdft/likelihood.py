@@ -17,6 +17,7 @@ option at that decision step (``"steps"``) or within that bin of decision steps
 
 from __future__ import annotations
 
+import inspect
 import numbers
 import warnings
 
@@ -100,6 +101,35 @@ def choose_engine(kind, method, subsets):
             raise ValueError("method='threshold_exact' needs mdft.threshold_probabilities")
         return "threshold_exact"
     return "simulation"
+
+
+#: ``mdft.threshold_probabilities`` arguments that a likelihood sets itself.
+_SET_BY_LIKELIHOOD = ("model", "theta", "max_steps")
+
+
+def check_threshold_options(options, engine):
+    """``options`` (``fit``'s ``threshold_options``) as a dict, checked: a dict of
+    ``mdft.threshold_probabilities`` keywords, given only where that engine runs."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise TypeError("threshold_options must be a dict of mdft.threshold_probabilities "
+                        f"keyword arguments (got {type(options).__name__})")
+    if not options:
+        return {}
+    if engine != "threshold_exact":
+        raise ValueError(
+            f"threshold_options is given, but this fit uses the {engine!r} engine, which does "
+            "not call mdft.threshold_probabilities (it is used with threshold stopping when "
+            "every subset has 2 options, or with method='threshold_exact')"
+        )
+    fn = _threshold_exact_function()
+    allowed = [k for k in inspect.signature(fn).parameters if k not in _SET_BY_LIKELIHOOD]
+    unknown = [k for k in options if k not in allowed]
+    if unknown:
+        raise ValueError(f"threshold_options has unknown name(s) {unknown}; allowed: {allowed} "
+                         "(model, theta and max_steps come from the fit)")
+    return dict(options)
 
 
 def _as_steps(data, max_steps):

@@ -327,6 +327,20 @@ def test_fit_bad_input(small_data, kwargs, exc, match):
         fit(small_data, [[1.0, 3.0], [3.0, 1.0]], **args)
 
 
+def test_an_unstable_fitted_model_is_not_called_converged():
+    # phi2 = 3 gives rho(S) = 6.3: over 20 steps preferences grow by 9e15 along S's leading
+    # direction, so the triple's shares hardly depend on w; the fit warns and says why
+    data = ChoiceData([[0, 1], [0, 1, 2]], [[55, 45], [30, 28, 42]])
+    M = [[1, 3], [3, 1], [2, 2]]
+    with pytest.warns(mdft.FitConvergenceWarning, match="feedback matrix S is unstable"):
+        res = fit(data, M, stopping=20, params=["w"], rng=0,
+                  fixed=dict(phi1=0.022, phi2=3.0, beta=12.0, sigma2=1.0))
+    assert not res.converged and "spectral radius 6.269" in res.message
+    # the same data with a stable fixed phi2 converge
+    stable = fit(data, M, stopping=20, params=["w"], rng=0, fixed=FIXED_ALL)
+    assert stable.converged
+
+
 def test_fit_bad_data_and_M(small_data):
     with pytest.raises(TypeError, match="data must be an mdft.ChoiceData"):
         fit([[6, 4]], [[1.0, 3.0], [3.0, 1.0]], stopping=10, fixed=FIXED_ALL)

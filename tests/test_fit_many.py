@@ -1,6 +1,8 @@
 """mdft.fit_many: the same fits whatever the executor, progress, resumable checkpoints."""
 
 import pickle
+import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -89,24 +91,106 @@ def test_checkpoint_resumes_without_refitting(tmp_path, serial):
         mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
 
 
+def interrupt(*args):
+    raise KeyboardInterrupt
+
+
 def test_an_interrupted_run_keeps_the_fits_that_were_running(tmp_path, serial):
-    # two workers: when the first fit ends, another is running; an interrupt then cancels
-    # the fits not started, and the running one finishes and is saved, not thrown away
+    # two workers: one fit per worker is submitted at a time, so when the first fit ends the
+    # other is running and none waits in a queue; an interrupt then submits no more, and the
+    # running one finishes and is saved, not thrown away
     from concurrent.futures import ThreadPoolExecutor
 
     folder = tmp_path / "fits"
-
-    def interrupt(*args):
-        raise KeyboardInterrupt
-
     with ThreadPoolExecutor(max_workers=2) as pool, pytest.raises(KeyboardInterrupt):
         mdft.fit_many(make_problems(), rng=7, executor=pool, checkpoint=folder,
                       progress=interrupt, **COMMON)
     saved = sorted(p.name for p in folder.glob("fit-*.pkl"))
-    assert len(saved) >= 2, saved
+    assert len(saved) == 2, saved
     again = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
                           **COMMON)
-    assert again.n_resumed == len(saved) and estimates(again) == estimates(serial)
+    assert again.n_resumed == 2 and estimates(again) == estimates(serial)
+
+
+def test_an_interrupted_dask_run_keeps_the_fits_that_were_running(tmp_path, serial):
+    # cancelling a Dask future stops its task even while it runs: the running fits must be
+    # waited for, not cancelled
+    distributed = pytest.importorskip("dask.distributed")
+    folder = tmp_path / "fits"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client, pytest.raises(KeyboardInterrupt):
+        mdft.fit_many(make_problems(), rng=7, executor=client, checkpoint=folder,
+                      progress=interrupt, **COMMON)
+    assert len(list(folder.glob("fit-*.pkl"))) == 2
+    again = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          **COMMON)
+    assert again.n_resumed == 2 and estimates(again) == estimates(serial)
+
+
+def test_serial_runs_save_each_fit_as_it_ends_and_stop_on_an_interrupt(tmp_path, monkeypatch):
+    # "serial" used to run every fit before the first was saved or reported, and an
+    # interrupt inside a fit was kept in its future while the other fits ran on
+    module = sys.modules["mdft.fit_many"]  # the module (mdft.fit_many is the function)
+    folder = tmp_path / "fits"
+    seen = []
+
+    def check(n_done, n_total, key, res):
+        seen.append(sorted(p.name for p in folder.glob("fit-*.pkl")))
+
+    mdft.fit_many(make_problems(3), rng=7, executor="serial", checkpoint=folder,
+                  progress=check, **COMMON)
+    assert [len(files) for files in seen] == [1, 2, 3]
+    calls = []
+    real = module._fit_one
+
+    def second_interrupted(kwargs, seed):
+        calls.append(seed)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(kwargs, seed)
+
+    monkeypatch.setattr(module, "_fit_one", second_interrupted)
+    other = tmp_path / "other"
+    with pytest.raises(KeyboardInterrupt):
+        mdft.fit_many(make_problems(3), rng=7, executor="serial", checkpoint=other, **COMMON)
+    assert len(calls) == 2 and len(list(other.glob("fit-*.pkl"))) == 1
+
+
+def test_thread_workers_keep_the_verdict_in_the_result_without_warning():
+    # one start is never confirmed: every fit is not converged, and says so in its result
+    from concurrent.futures import ThreadPoolExecutor
+
+    one_start = {**COMMON, "n_starts": 1}
+    with warnings.catch_warnings(record=True) as caught, ThreadPoolExecutor(2) as pool:
+        warnings.simplefilter("always")
+        many = mdft.fit_many(make_problems(), rng=7, executor=pool, **one_start)
+    assert many.n_converged == 0
+    assert all("a single start" in r.message for r in many.results)
+    assert not [w for w in caught if issubclass(w.category, mdft.FitConvergenceWarning)]
+    prob = make_problems(1)[0]
+    with pytest.warns(mdft.FitConvergenceWarning, match="a single start"):
+        mdft.fit(prob["data"], prob["M"], rng=0, **one_start)
+
+
+def test_checkpoint_resumes_settings_written_differently(tmp_path, serial):
+    # the same settings in another spelling give the same fits, so they resume
+    folder = tmp_path / "fits"
+    mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
+    respelt = dict(stopping=mdft.FixedTime(30), params=("w",), n_starts=2, max_iter=500,
+                   fixed=dict(sigma2=1, beta=12, phi2=0.05, phi1=0.022))
+    again = mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                          **respelt)
+    assert again.n_resumed == 4 and estimates(again) == estimates(serial)
+    with pytest.raises(ValueError, match="holds the fit of a different problem"):
+        mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
+                      **{**respelt, "n_starts": 3})
+    (folder / "fit-000001.pkl").write_bytes(b"\x80\x04garbage")
+    with pytest.raises(ValueError, match=r"fit-000001.pkl cannot be read .*delete it"):
+        mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
+    (folder / "fit-000001.pkl").write_bytes(pickle.dumps({"version": 1, "result": None}))
+    with pytest.raises(ValueError, match="written by another version of fit_many"):
+        mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
 
 
 def test_checkpoint_resumes_with_the_default_rng(tmp_path):
@@ -147,6 +231,13 @@ def test_progress_bar(capsys):
     assert "2/2" in capsys.readouterr().err
 
 
+class NotAnExecutor:
+    """Has ``submit`` but returns no future."""
+
+    def submit(self, fn, *args, **kwargs):
+        return fn(*args, **kwargs)
+
+
 @pytest.mark.parametrize(
     "problems, kwargs, exc, match",
     [
@@ -160,6 +251,11 @@ def test_progress_bar(capsys):
         (None, dict(on_error="ignore"), ValueError, "on_error must be 'raise' or 'store'"),
         (None, dict(progress="yes"), TypeError, "progress must be True, False or a callable"),
         (None, dict(n_workers=0), ValueError, "n_workers must be an integer >= 1"),
+        (None, dict(executor=NotAnExecutor()), TypeError, "executor must be None, 'serial'"),
+        (None, dict(progres=True), TypeError,
+         r"problems\[0\] with the common keywords: got an unexpected keyword argument "
+         "'progres'; fit_many's own arguments are"),
+        ([dict(data=None, M=None, n_start=3)], {}, TypeError, "'n_start'"),
     ],
 )
 def test_fit_many_bad_input(problems, kwargs, exc, match, tmp_path):

@@ -116,6 +116,17 @@ def test_simulated_binned_likelihood_for_three_options():
         (dict(params=["theta"], stopping=20), ValueError, "theta can be fitted only with"),
         (dict(fixed=dict(theta=3.0, sigma2=1.0, **KNOWN)), ValueError,
          r"theta is given by stopping=mdft.Threshold\(theta\)"),
+        (dict(params=["w", "theta"], bounds=dict(theta=(0, 10))), ValueError,
+         r"bounds\['theta'\]\[0\] must be > 0"),
+        (dict(threshold_options=5), TypeError, "threshold_options must be a dict of "
+         "mdft.threshold_probabilities keyword arguments \\(got int\\)"),
+        (dict(threshold_options=dict(n_cell=50)), ValueError,
+         r"threshold_options has unknown name\(s\) \['n_cell'\]; allowed: \['atol'"),
+        (dict(threshold_options=dict(theta=5.0)), ValueError, "unknown name"),
+        (dict(stopping=20, threshold_options=dict(atol=1e-3)), ValueError,
+         "threshold_options is given, but this fit uses the 'closed_form' engine"),
+        (dict(method="simulation", threshold_options=dict(atol=1e-3)), ValueError,
+         "uses the 'simulation' engine"),
     ],
 )
 def test_fit_response_time_bad_input(trials, kwargs, exc, match):
