@@ -51,6 +51,10 @@ TAIL_SHARE = 0.01
 # "propagate": a pass whose mass reaching states without rows (left out as
 # never occupied by the coarser pass) exceeds this is built again with every row.
 ESCAPE_MAX = 1e-10
+# A deliberation of at most this many steps on average (the first pass that counts): the
+# walks decide before their sums settle, so the one spread the pilots fit over the whole
+# occupation is least sure, and the closure's spread is probed larger too.
+SHORT_DELIBERATION = 30.0
 # The passes that count try the Krylov tail early (mdft._plane_chain.propagate_moments's
 # ``early``) where the last pilot ran at least this many steps before its geometric tail
 # could be filled: their walks settle late, and a try at the usual first step would find
@@ -77,6 +81,15 @@ def narrow_everywhere(model, theta, kappa):
             f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
             f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
             "not trusted")
+
+
+def mean_steps(answer):
+    """Steps per walk of ``answer`` (a propagated pass): the mean decision step, with the
+    undecided mass counted at ``max_steps``; inf for a solved pass (no distribution)."""
+    if answer.rt_pmf is None:
+        return math.inf
+    times = np.arange(1, answer.rt_pmf.shape[0] + 1, dtype=np.float64)
+    return float(times @ answer.rt_pmf.sum(axis=1)) + answer.p_undecided * answer.max_steps
 
 
 def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, cheaper=None):
@@ -154,8 +167,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
 
     def ask_cheaper(chain, out, cut):
         # the passes ahead at the least: the first that counts with its two probes (where the
-        # sum moves), on a grid REFINE finer than the pilots', and the next; after a cut
-        # pilot, two refits before them
+        # sum moves; three in a short deliberation), on a grid REFINE finer than the
+        # pilots', and the next; after a cut pilot, two refits before them
         passes = (3 if state["delta"] > 0.0 else 1) + (2 if cut else 0)
         nonzeros = chain.cols.shape[0] * (passes * REFINE**4 + REFINE**8)
         answer = None  # a cut pilot's answer predicts nothing
@@ -288,10 +301,18 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                     plane = error_estimate(result, run(k, state["delta"], walks))
                     state["near"], state["krylov_from"] = kept
                 # ... and from the spread: the change that a spread of the sum within the
-                # states smaller by a factor sqrt(2) makes
+                # states smaller by a factor sqrt(2) makes; in a short deliberation, the
+                # larger of that and the change a spread larger by sqrt(2) makes (there the
+                # answer can move with a larger spread only: the smaller one alone had
+                # vouched for mean times 0.7 % long)
                 spread = error_estimate(result, run(k, state["delta"] / REFINE))
-                # the larger of the two: both measure the one linearisation around the
-                # reference sums (their sum counted it twice)
+                if mean_steps(result) <= SHORT_DELIBERATION:
+                    kept = (state["walks"], state["near"], state["krylov_from"])
+                    larger = error_estimate(result, run(k, state["delta"] * REFINE))
+                    state["walks"], state["near"], state["krylov_from"] = kept
+                    spread = (max(spread[0], larger[0]), max(spread[1], larger[1]))
+                # the larger of the spread's and the plane's: both measure the one
+                # linearisation around the reference sums (their sum counted it twice)
                 err = (max(spread[0], plane[0]), max(spread[1], plane[1]))
                 closure.update(error=err, settled=not first or (
                     err[0] <= RECHECK_SHARE * tolerances[0]

@@ -326,7 +326,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         first_pair = partner_index == 0
         if not half:
             partner, partner_tail, partner_index = result, own_tail, index
-        # the closure's error: the larger of its two probes (plane_runs)
+        # the closure's error: the largest of its probes (plane_runs)
         spread_p, spread_rt = closure["error"]
         # with the reference term where the reference sums were refitted (a cut pilot)
         spread_p += closure.get("reference", (0.0, 0.0))[0]
@@ -428,9 +428,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             "the tolerances; or estimate threshold stopping with mdft.simulate(model, "
             "n_samples, stopping=mdft.Threshold(theta))"
         )
+    # more states cannot help where the closure alone exceeds the tolerances
+    raise_what = "atol or rt_rtol" if "whatever the resolution" in reason else (
+        "max_states, atol or rt_rtol")
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="
-        f"{max_states}: {reason}. Raise max_states, atol or rt_rtol, or estimate threshold "
+        f"{max_states}: {reason}. Raise {raise_what}, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
     )
 

@@ -235,3 +235,32 @@ def test_a_start_whose_sum_the_pilots_can_follow_is_answered_by_the_chain():
     res = threshold_probabilities(model, FAR_START_THETA, fallback="raise")
     assert res.engine == "plane"
     assert_within_stated_error(res, model, FAR_START_THETA, 200_000, 22)
+
+
+def pair_and_dominated(phi2, sigma2):
+    """Two identical options and a dominated third under strong inhibition, deciding in
+    about 10 steps: the pocket of docs/threshold_exact.md, section 8."""
+    return drawn([[2.0, 5.0], [1.0, 1.0], [2.0, 5.0]], [0.580461, 0.419539],
+                 phi1=0.01400131208025551, phi2=phi2, beta=0.8131529373390731, sigma2=sigma2)
+
+
+def test_a_short_deliberation_probes_a_larger_spread_of_the_sum():
+    """The probe with a smaller spread alone vouched for mean times 0.69 % long (10.5879
+    steps, estimate 0.25 %; 10**7 simulated trials: 10.5150 and 10.5131, se 0.0026): in a
+    short deliberation the larger spread's probe (0.51 %) refuses it, saying that more
+    states cannot help, and the default fallback simulates to the tolerances."""
+    model, theta = pair_and_dominated(0.15, 0.10959392210553112), 5.256539845366378
+    with pytest.raises(ValueError, match=r"may change .* the mean response times by 0\.00[5-9]"
+                                         r".*whatever the resolution\. Raise atol or rt_rtol,"):
+        threshold_probabilities(model, theta, fallback="raise")
+    res = threshold_probabilities(model, theta)
+    assert res.engine == "simulation"
+    reference = np.array([10.5150, 10.5131])
+    se = 0.0026
+    off = np.abs(res.mean_response_times[[0, 2]] - reference)
+    assert np.all(off <= res.error_mean_rt * reference + 4 * se)
+    # a longer deliberation of the same kind (about 52 steps) is not probed that way and is
+    # answered by the chain: 51.85 steps with an estimate of 0.20 %, where 2 x 10**6
+    # simulated trials give 51.97 and 52.02 (0.24-0.32 % short, within the 0.5 % target)
+    long = threshold_probabilities(pair_and_dominated(0.15, 1.0), 12.0, fallback="raise")
+    assert long.engine == "plane"
