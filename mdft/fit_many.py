@@ -364,7 +364,10 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         with ``"forkserver"`` where available, else ``"spawn"``, never ``"fork"``, which is
         unsafe with numba's and OpenMP's threads; numba uses one thread per worker).
         ``"serial"``: in this process, one after the other. An executor or a Dask
-        ``Client`` (its ``get_executor()``) is used as given and not shut down.
+        ``Client`` (its ``get_executor()``) is used as given and not shut down. One fit
+        per worker is submitted at a time, so an interrupt leaves none queued. A script
+        that uses the default pool must call ``fit_many`` under
+        ``if __name__ == "__main__":`` (its workers import the script).
     n_workers : int, optional
         Processes of the default pool (default: the usable cores, at most 8).
     progress : bool or callable, default False
@@ -373,8 +376,10 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         fit that raised).
     checkpoint : str or path-like, optional
         A folder: each finished fit is saved there atomically as it completes, and a later
-        call with the same folder reads finished fits back instead of running them. A file
-        made from a different problem, settings or seed raises ``ValueError``.
+        call with the same folder reads finished fits back instead of running them
+        (settings spelt differently, e.g. ``fixed`` in another order, still resume). A
+        file made from a different problem, settings or seed, or that cannot be read,
+        raises ``ValueError``.
     rng : None, int or numpy.random.SeedSequence
         Root of the per-problem seeds (problem ``i`` uses the ``i``-th spawned child); the
         same ``rng`` gives the same fits whatever the executor. None draws fresh entropy;
