@@ -318,6 +318,26 @@ def _usable_cores():
         os.cpu_count() or 1)
 
 
+def _is_dask_client(executor):
+    return hasattr(executor, "get_executor") and hasattr(executor, "nthreads")
+
+
+def _check_executor(executor):
+    """Raise unless ``executor`` is None, "serial", an Executor or a Dask Client."""
+    if executor is None or (isinstance(executor, str) and executor == "serial"):
+        return
+    if isinstance(executor, str):
+        raise ValueError(
+            f"executor must be None, 'serial', a concurrent.futures.Executor or a "
+            f"dask.distributed Client (got {executor!r})"
+        )
+    if not (_is_dask_client(executor) or isinstance(executor, cf.Executor)):
+        raise TypeError(
+            "executor must be None, 'serial', a concurrent.futures.Executor or a "
+            f"dask.distributed Client (got {type(executor).__name__})"
+        )
+
+
 def _resolve_executor(executor, n_workers):
     """``(executor, owned, slots)``: the executor to submit to, whether fit_many must shut it
     down, and how many fits to keep submitted at a time (one per worker where that is
@@ -329,24 +349,15 @@ def _resolve_executor(executor, n_workers):
         pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
                                       initargs=(1,))
         return pool, True, n
+    _check_executor(executor)
     if isinstance(executor, str):
-        if executor != "serial":
-            raise ValueError(
-                f"executor must be None, 'serial', a concurrent.futures.Executor or a "
-                f"dask.distributed Client (got {executor!r})"
-            )
         return _Serial(), True, 1
-    if hasattr(executor, "get_executor") and hasattr(executor, "nthreads"):  # a Dask Client
+    if _is_dask_client(executor):
         threads = sum(executor.nthreads().values())
         return executor.get_executor(), False, threads if threads > 0 else _usable_cores()
-    if isinstance(executor, cf.Executor):
-        workers = getattr(executor, "_max_workers", None)  # the standard library's pools
-        slots = workers if isinstance(workers, int) and workers > 0 else _usable_cores()
-        return executor, False, slots
-    raise TypeError(
-        "executor must be None, 'serial', a concurrent.futures.Executor or a dask.distributed "
-        f"Client (got {type(executor).__name__})"
-    )
+    workers = getattr(executor, "_max_workers", None)  # the standard library's pools
+    slots = workers if isinstance(workers, int) and workers > 0 else _usable_cores()
+    return executor, False, slots
 
 
 def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpoint=None,
@@ -414,6 +425,7 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
         raise ValueError("rng is fit_many's own argument")
     if n_workers is not None:
         n_workers = as_count("n_workers", n_workers)
+    _check_executor(executor)  # also where every fit is resumed and none runs
     if not (isinstance(progress, bool) or callable(progress)):
         raise TypeError(f"progress must be True, False or a callable (got {progress!r})")
     folder = None

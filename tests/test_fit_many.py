@@ -185,6 +185,10 @@ def test_checkpoint_resumes_settings_written_differently(tmp_path, serial):
     with pytest.raises(ValueError, match="holds the fit of a different problem"):
         mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder,
                       **{**respelt, "n_starts": 3})
+    with pytest.raises(TypeError, match="executor must be None, 'serial'"):
+        # every fit is resumed, and the executor is still checked
+        mdft.fit_many(make_problems(), rng=7, executor=NotAnExecutor(), checkpoint=folder,
+                      **COMMON)
     (folder / "fit-000001.pkl").write_bytes(b"\x80\x04garbage")
     with pytest.raises(ValueError, match=r"fit-000001.pkl cannot be read .*delete it"):
         mdft.fit_many(make_problems(), rng=7, executor="serial", checkpoint=folder, **COMMON)
