@@ -15,7 +15,7 @@ import numpy as np
 from ._plane_chain import (PILOT_RUNAWAY, TooManyStates, build_moment_chain, mean_sums,
                            narrow_axes, near_occupied, pilot_pass, plane_geometry,
                            propagate_moments, reference_sums, solve_moments)
-from ._threshold_fallback import RT_WEIGHT_FLOOR
+from ._threshold_fallback import RT_WEIGHT_FLOOR, steps_per_walk
 from ._threshold_solve import error_estimate, krylov, mean_rt
 from .threshold_result import ThresholdProbabilities
 
@@ -81,15 +81,6 @@ def narrow_everywhere(model, theta, kappa):
             f"narrower than the cells over sqrt(3) even at the finest resolution {finest:.3g} "
             f"(spacing {float(cells[k]):.3g} along that axis), where the chain's answers are "
             "not trusted")
-
-
-def mean_steps(answer):
-    """Steps per walk of ``answer`` (a propagated pass): the mean decision step, with the
-    undecided mass counted at ``max_steps``; inf for a solved pass (no distribution)."""
-    if answer.rt_pmf is None:
-        return math.inf
-    times = np.arange(1, answer.rt_pmf.shape[0] + 1, dtype=np.float64)
-    return float(times @ answer.rt_pmf.sum(axis=1)) + answer.p_undecided * answer.max_steps
 
 
 def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, cheaper=None):
@@ -306,7 +297,9 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 # answer can move with a larger spread only: the smaller one alone had
                 # vouched for mean times 0.7 % long)
                 spread = error_estimate(result, run(k, state["delta"] / REFINE))
-                if mean_steps(result) <= SHORT_DELIBERATION:
+                if result.rt_pmf is not None and steps_per_walk(
+                        result.rt_pmf, result.p_undecided,
+                        result.max_steps) <= SHORT_DELIBERATION:
                     kept = (state["walks"], state["near"], state["krylov_from"])
                     larger = error_estimate(result, run(k, state["delta"] * REFINE))
                     state["walks"], state["near"], state["krylov_from"] = kept

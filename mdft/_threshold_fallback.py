@@ -68,7 +68,13 @@ def predicted_trials(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rto
     err_p, err_rt = _errors(n * probabilities, n * p_undecided, n * (times @ rt_pmf),
                             n * ((times**2) @ rt_pmf))
     trials = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2), FIRST_BATCH)
-    return trials, float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps
+    return trials, steps_per_walk(rt_pmf, p_undecided, max_steps)
+
+
+def steps_per_walk(rt_pmf, p_undecided, max_steps):
+    """Mean steps a walk (or trial) runs: its decision step, or ``max_steps`` undecided."""
+    times = np.arange(1, rt_pmf.shape[0] + 1, dtype=np.float64)
+    return float(times @ rt_pmf.sum(axis=1)) + p_undecided * max_steps
 
 
 def predicted_work(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):

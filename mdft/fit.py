@@ -261,17 +261,16 @@ def fit(
             f"{', '.join(on_bound)} on a bound of its range (widen bounds= if the range allows)"
         )
     model = quiet_model(p_hat["M"], p_hat)
-    horizon = spec if kind == "fixed" else None
-    growth = growth_factor(model.spectral_radius, REFERENCE_STEPS if horizon is None else horizon)
+    steps = spec if kind == "fixed" else REFERENCE_STEPS
+    growth = growth_factor(model.spectral_radius, steps)
     if growth > GROWTH_LIMIT:
         # the likelihood of such a model says little: its preferences run away along S's
         # leading direction, whatever the other parameters are
+        over = "the" if kind == "fixed" else "a reference deliberation of"
         problems.append(
             f"the fitted model's feedback matrix S is unstable (spectral radius "
             f"{model.spectral_radius:.4g}: preferences can grow by a factor of {growth:.3g} over "
-            f"{'the' if horizon else 'a reference deliberation of'} "
-            f"{REFERENCE_STEPS if horizon is None else horizon} steps); lower phi2 (its bound "
-            "or fixed value) or raise phi1"
+            f"{over} {steps} steps); lower phi2 (its bound or fixed value) or raise phi1"
         )
     converged = out.converged and not lik.last_warnings and growth <= GROWTH_LIMIT
     message = best.message if not problems else "; ".join(problems)

@@ -214,12 +214,12 @@ def _fit_arguments(kwargs):
     return out
 
 
-def _fingerprint(kwargs, seed):
-    """What a checkpoint file must have been made from: the problem, the settings and the
-    seed, the same for settings spelt differently that give the same fit."""
-    args = _fit_arguments(kwargs)
-    data = args.pop("data", None)
-    blob = pickle.dumps((_canonical(args), data, int(seed)), protocol=4)
+def _fingerprint(args, seed):
+    """What a checkpoint file must have been made from: the problem, the settings
+    (``_fit_arguments``) and the seed, the same for settings spelt differently that give
+    the same fit."""
+    settings = {k: v for k, v in args.items() if k != "data"}
+    blob = pickle.dumps((_canonical(settings), args.get("data"), int(seed)), protocol=4)
     return hashlib.sha256(blob).hexdigest()
 
 
@@ -341,7 +341,8 @@ def _check_executor(executor):
 def _resolve_executor(executor, n_workers):
     """``(executor, owned, slots)``: the executor to submit to, whether fit_many must shut it
     down, and how many fits to keep submitted at a time (one per worker where that is
-    known), so that every fit submitted is running and none waits in a queue."""
+    known), so that every fit submitted is running and none waits in a queue. ``executor``
+    has passed :func:`_check_executor`."""
     if executor is None:
         n = n_workers or max(1, min(_usable_cores(), 8))
         ctx = multiprocessing.get_context(
@@ -349,7 +350,6 @@ def _resolve_executor(executor, n_workers):
         pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker,
                                       initargs=(1,))
         return pool, True, n
-    _check_executor(executor)
     if isinstance(executor, str):
         return _Serial(), True, 1
     if _is_dask_client(executor):
@@ -448,16 +448,17 @@ def fit_many(problems, *, executor=None, n_workers=None, progress=False, checkpo
     results = [None] * n
     errors = {}
     kwargs_list = [{**common, **prob} for _, prob in items]
-    for (key, _), kw in zip(items, kwargs_list):
+    prints = []
+    for (key, _), kw, seed in zip(items, kwargs_list, seeds):
         try:
-            _fit_arguments(kw)
+            args = _fit_arguments(kw)
         except TypeError as exc:
             raise TypeError(
                 f"problems[{key!r}] with the common keywords: {exc}; fit_many's own "
                 "arguments are executor, n_workers, progress, checkpoint, rng and on_error, "
                 "and every other keyword must be an argument of mdft.fit"
             ) from None
-    prints = [_fingerprint(kw, s) for kw, s in zip(kwargs_list, seeds)]
+        prints.append(_fingerprint(args, seed))
     todo = []
     n_resumed = 0
     for i in range(n):

@@ -308,6 +308,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     partner_index = -1
     grid_errors = []  # each comparison's grid term (probabilities, mean times)
     try_half = True  # whether the next half step may meet the tolerances
+    closure_bound = False  # refused for the closure's term, which more states cannot lower
     for index, compute in enumerate(runs):
         half = compute.half
         if half and (not try_half or compute.narrow()):
@@ -348,6 +349,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             reason = (f"{what} alone may change the probabilities "
                       f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
+            closure_bound = True
             break
         if coarse is None:
             continue
@@ -428,9 +430,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             "the tolerances; or estimate threshold stopping with mdft.simulate(model, "
             "n_samples, stopping=mdft.Threshold(theta))"
         )
-    # more states cannot help where the closure alone exceeds the tolerances
-    raise_what = "atol or rt_rtol" if "whatever the resolution" in reason else (
-        "max_states, atol or rt_rtol")
+    raise_what = "atol or rt_rtol" if closure_bound else "max_states, atol or rt_rtol"
     raise ValueError(
         "threshold_probabilities cannot vouch for this model within max_states="
         f"{max_states}: {reason}. Raise {raise_what}, or estimate threshold "
