@@ -10,8 +10,13 @@ that decided, which must stay below the bound. Then it times one bound at 10,000
 model and counts, on ``--draws`` of the threshold benchmark's three-option draws (its
 ``--seed``), the models that the bound answers with the default tolerances.
 
+``--chernoff`` checks and times the bound as ``threshold_probabilities`` uses it, the
+Chernoff bound tried where Hoeffding's and Bernstein's misses the level (without it,
+Hoeffding's and Bernstein's bound alone); the counts of answered draws give both.
+
     python benchmarks/bench_threshold_bound.py
     python benchmarks/bench_threshold_bound.py --models 30 --trials 200000 --seed 1000
+    python benchmarks/bench_threshold_bound.py --chernoff --draw-seeds 1313 8383 5150 6061
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import mdft  # noqa: E402
 from bench_threshold_exact import draw_model  # noqa: E402
-from mdft._threshold_bound import decision_bound, theta_for_bound, within_tolerances  # noqa: E402
+from mdft._threshold_bound import (decision_bound, theta_for_bound, tolerance_level,  # noqa: E402
+                                   within_tolerances)
 
 
 def main(argv=None):
@@ -40,23 +46,27 @@ def main(argv=None):
     parser.add_argument("--draws", type=int, default=40,
                         help="three-option draws of bench_threshold_exact.py counted")
     parser.add_argument("--draw-seeds", type=int, nargs="*", default=[1313, 8383])
+    parser.add_argument("--chernoff", action="store_true",
+                        help="the bound with the Chernoff bound tried (as the library uses it)")
     args = parser.parse_args(argv)
+    level = args.level if args.chernoff else None
 
     rng = np.random.default_rng(args.seed)
     shares, times = [], []
     print(f"{'#':>3} {'options':>7} {'attrs':>5} {'steps':>5} {'theta':>8} {'decided':>9} "
           f"{'bound':>7}")
     decision_bound(draw_model(rng, 2)[0], 10.0, 10)  # compile outside the timings
+    mdft._threshold_bound.compile_kernels()
     for k in range(args.models):
         model, _ = draw_model(rng, int(rng.integers(2, 5)))
         steps = int(rng.choice([5, 30, 100, 300, 1000]))
-        theta = theta_for_bound(model, steps, args.level)
+        theta = theta_for_bound(model, steps, args.level, chernoff=args.chernoff)
         sim = mdft.simulate(model, args.trials, stopping=mdft.Threshold(theta, max_steps=steps),
                             rng=k)
         decided = float(np.mean(sim.choices >= 0))
         shares.append(decided)
         t0 = time.perf_counter()
-        decision_bound(model, theta, 10_000)
+        decision_bound(model, theta, 10_000, target=level)
         times.append(time.perf_counter() - t0)
         flag = "" if decided <= args.level else "  ABOVE THE BOUND"
         print(f"{k:>3} {model.n_options:>7} {model.M.shape[1]:>5} {steps:>5} {theta:>8.2f} "
@@ -70,10 +80,13 @@ def main(argv=None):
     for seed in args.draw_seeds:
         draws = np.random.default_rng(seed)
         models = [draw_model(draws, 3) for _ in range(args.draws)]
-        answered = [i for i, (m, th) in enumerate(models)
-                    if within_tolerances(decision_bound(m, th, 10_000), 1e-3, 3e-3)]
-        print(f"seed {seed}: the bound answers {len(answered)} of {args.draws} three-option "
-              f"draws at max_steps=10,000 and the default tolerances: {answered}")
+        target = tolerance_level(1e-3, 3e-3)
+        for label, tried in (("Hoeffding and Bernstein", None), ("with Chernoff", target)):
+            answered = [i for i, (m, th) in enumerate(models) if within_tolerances(
+                decision_bound(m, th, 10_000, target=tried), 1e-3, 3e-3)]
+            print(f"seed {seed}, {label}: the bound answers {len(answered)} of {args.draws} "
+                  f"three-option draws at max_steps=10,000 and the default tolerances: "
+                  f"{answered}")
 
 
 if __name__ == "__main__":

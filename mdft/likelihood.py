@@ -269,7 +269,8 @@ class Likelihood:
         import mdft
 
         model = quiet_model(Ms, p)
-        if decision_bound(model, theta, max_steps) * self.n_samples <= UNREACHED_TRIALS:
+        reach = UNREACHED_TRIALS / self.n_samples
+        if decision_bound(model, theta, max_steps, target=reach) <= reach:
             # a threshold out of reach: the trials would all run max_steps steps to decide
             # nothing (but for a chance below UNREACHED_TRIALS that one of them decides)
             return _Undecided(len(sub))

@@ -26,7 +26,8 @@ import numpy as np
 from ._lattice_chain import UnboundedSum, build_chain, chain_sum_bounds, sum_is_constant
 from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
-from ._threshold_bound import decision_bound, undecided_answer, within_tolerances
+from ._threshold_bound import (decision_bound, tolerance_level, undecided_answer,
+                               within_tolerances)
 from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
@@ -473,7 +474,7 @@ def _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
     (``method="propagate"`` only: the long run has no step limit), else None."""
     if method != "propagate":
         return None
-    bound = decision_bound(model, theta, max_steps)
+    bound = decision_bound(model, theta, max_steps, target=tolerance_level(atol, rt_rtol))
     if not within_tolerances(bound, atol, rt_rtol):
         return None
     logger.info("threshold_probabilities: some option is chosen within %d steps with "

@@ -70,7 +70,7 @@ def _steps():
     """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
     from .simulate import FixedTime, Threshold, decide, simulate
-    from . import _plane_krylov
+    from . import _plane_krylov, _threshold_bound
     from .threshold_exact import threshold_probabilities
 
     M3 = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
@@ -93,7 +93,7 @@ def _steps():
         ("threshold_probabilities", lambda: (
             threshold_probabilities(m2, 3.0, max_steps=20, n_cells=5),
             threshold_probabilities(m3, 3.0, max_steps=20),
-            _plane_krylov.compile_kernels())),
+            _plane_krylov.compile_kernels(), _threshold_bound.compile_kernels())),
     ]
 
 
