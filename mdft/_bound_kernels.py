@@ -20,6 +20,11 @@ import numpy as np
 
 from ._numba import njit
 
+#: Relative margin within which a mean counts as reaching ``theta``: the kernels sum the
+#: mean path in another order than the simulation, so a noiseless path that touches
+#: ``theta`` there may fall a few units in the last place short of it here.
+ROUNDING = 1e-9
+
 
 @njit
 def _start(S, C, CM, P0):
@@ -73,6 +78,17 @@ def _terms(B, w, noise_var, i, m, n):
 
 
 @njit
+def _gap(theta, start, drift, size):
+    """``z = theta - (start + drift)``, the distance of an option's mean below ``theta``, or
+    0.0 where it is within :data:`ROUNDING` of the magnitudes summed (``size``: the sum
+    of the drift's terms' sizes)."""
+    z = theta - (start + drift)
+    if z <= ROUNDING * (abs(theta) + abs(start) + size):
+        return 0.0
+    return z
+
+
+@njit
 def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
     """Upper bound on the probability that some preference reaches ``theta`` within
     ``max_steps`` steps of ``P(t) = S P(t-1) + C (M W(t) + eps(t))``.
@@ -83,13 +99,14 @@ def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
     ``exp(-z^2 / (2 (V + b z / 3)))`` (``V``: the variance of ``Z``; ``b``: the largest
     value an attention term takes; the Gaussian terms meet Bernstein's moment condition for
     any ``b``). The union over options and steps bounds the probability of any decision.
-    Returns 1.0 (no bound) where some mean reaches ``theta`` or a power of ``S`` stops
-    being finite. Once the sums no longer change in floating point, every later step adds
+    Returns 1.0 (no bound) where some mean reaches ``theta`` (within :data:`ROUNDING`) or
+    a power of ``S`` stops being finite. Once the sums no longer change in floating point, every later step adds
     the same terms, counted at once.
     """
     n = S.shape[0]
     m = CM.shape[1]
     B, nxt, drift = _start(S, C, CM, P0)
+    size = np.zeros(n)
     hoeffding = np.zeros(n)
     variance = np.zeros(n)
     top = np.zeros(n)
@@ -105,10 +122,11 @@ def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
                     or new_v != variance[i] or (k > 0 and nxt[i, m + n] != B[i, m + n])):
                 settled = False
             drift[i] += mean
+            size[i] += abs(mean)
             hoeffding[i] = new_h
             variance[i] = new_v
             top[i] = max(top[i], hi - mean)
-            z = theta - (B[i, m + n] + drift[i])
+            z = _gap(theta, B[i, m + n], drift[i], size[i])
             if not (z > 0.0 and math.isfinite(hoeffding[i])):
                 return 1.0
             if hoeffding[i] > 0.0:
@@ -135,11 +153,12 @@ def chernoff_grid(S, C, CM, w, P0, noise_var, theta, max_steps, n_lambda, spread
     bound: ``n_lambda`` values spaced evenly in ``log lambda`` from ``c / spread`` to
     ``c * spread``, where ``c = z / V`` is the Gaussian optimum at step ``max_steps``, or
     where the sums stop changing (``z = theta - a_i``, ``V`` the variance of ``Z``).
-    Returns an empty grid (no bound) as soon as some mean reaches ``theta``, or where ``Z``
-    has no variance."""
+    Returns an empty grid (no bound) as soon as some mean reaches ``theta`` (within
+    :data:`ROUNDING`), or where ``Z`` has no variance."""
     n = S.shape[0]
     m = CM.shape[1]
     B, nxt, drift = _start(S, C, CM, P0)
+    size = np.zeros(n)
     variance = np.zeros(n)
     for k in range(max_steps):
         settled = k > 0
@@ -149,8 +168,9 @@ def chernoff_grid(S, C, CM, w, P0, noise_var, theta, max_steps, n_lambda, spread
                     or (k > 0 and nxt[i, m + n] != B[i, m + n])):
                 settled = False
             drift[i] += mean
+            size[i] += abs(mean)
             variance[i] += attention + gauss
-            if not theta - (B[i, m + n] + drift[i]) > 0.0:
+            if not _gap(theta, B[i, m + n], drift[i], size[i]) > 0.0:
                 return np.empty((0, n_lambda))
         if settled or k + 1 == max_steps:
             break
@@ -158,7 +178,7 @@ def chernoff_grid(S, C, CM, w, P0, noise_var, theta, max_steps, n_lambda, spread
         B, nxt = nxt, B
     grid = np.empty((n, n_lambda))
     for i in range(n):
-        z = theta - (B[i, m + n] + drift[i])
+        z = _gap(theta, B[i, m + n], drift[i], size[i])
         centre = z / variance[i] if variance[i] > 0.0 else math.nan
         if not 0.0 < centre < math.inf:
             return np.empty((0, n_lambda))
@@ -181,13 +201,14 @@ def chernoff_bound(S, C, CM, w, P0, noise_var, theta, max_steps, grid, limit):
     Bernstein's bounds, which know only their range or their largest value. It costs
     ``grid.shape[1]`` exponentials per attribute, option and step, so it stops as soon as
     the union passes ``limit`` (the level the caller needs) and returns 1.0 there, as
-    where some mean reaches ``theta``. Once the sums no longer change in floating point,
-    every later step adds the same terms, counted at once.
+    where some mean reaches ``theta`` (within :data:`ROUNDING`). Once the sums no longer
+    change in floating point, every later step adds the same terms, counted at once.
     """
     n = S.shape[0]
     m = CM.shape[1]
     n_lambda = grid.shape[1]
     B, nxt, drift = _start(S, C, CM, P0)
+    size = np.zeros(n)
     K = np.zeros((n, n_lambda))
     total = 0.0
     for k in range(max_steps):
@@ -198,7 +219,8 @@ def chernoff_bound(S, C, CM, w, P0, noise_var, theta, max_steps, grid, limit):
             if drift[i] + mean != drift[i] or (k > 0 and nxt[i, m + n] != B[i, m + n]):
                 settled = False
             drift[i] += mean
-            z = theta - (B[i, m + n] + drift[i])
+            size[i] += abs(mean)
+            z = _gap(theta, B[i, m + n], drift[i], size[i])
             if not z > 0.0:
                 return 1.0
             best = math.inf

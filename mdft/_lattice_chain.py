@@ -170,6 +170,16 @@ def sum_is_constant(S, s0):
     return bool(np.ptp(c) <= 1e-12 and abs(c[0] * s0 - s0) <= 1e-12 * max(1.0, abs(s0)))
 
 
+def _check_box(n_cells, n_box):
+    """Refuse a lattice whose bounding box holds more than four times the states allowed
+    (about half the box lies inside the region)."""
+    if not n_box <= 4 * MAX_STATES:
+        raise TooManyStates(
+            f"n_cells={n_cells} gives about {int(n_box) // 2} lattice states (the lattice's "
+            f"limit is {MAX_STATES})"
+        )
+
+
 def build_chain(model, theta, n_cells, variance_correction):
     """The lattice chain of a two-option model with ``n_cells`` cells per ``theta``.
 
@@ -187,36 +197,32 @@ def build_chain(model, theta, n_cells, variance_correction):
         s_lo = s_hi = s0
     else:
         s_lo, s_hi = chain_sum_bounds(S, theta, s0)
-    if s_hi - s_lo > 0.0:
-        n_levels = max(2, int(math.ceil((s_hi - s_lo) / h)) + 1)
-        levels = np.linspace(s_lo, s_hi, n_levels)
-    else:
-        n_levels = 1
-        levels = np.array([s_lo])
     # bounding box of the largest transient region, at the lowest summed preference
     R = theta - s_lo / n
     verts = np.full((n, n), R) - n * R * np.eye(n)  # row k: every option at R but k
     zv = verts @ E
+    # the box's cells and levels are counted before any is stored: a start far below a
+    # small theta asks for more than memory holds
+    spans = [float(zv[:, k].max() - zv[:, k].min()) for k in range(n - 1)]
+    counts = [max(1.0, math.ceil(span / h - 1e-9)) for span in spans]
+    counts.append(max(2.0, math.ceil((s_hi - s_lo) / h) + 1.0) if s_hi - s_lo > 0.0 else 1.0)
+    _check_box(n_cells, math.prod(counts))
+    n_levels = int(counts[-1])
+    levels = np.linspace(s_lo, s_hi, n_levels) if n_levels > 1 else np.array([s_lo])
     edges = []
     for k in range(2):
         lo, hi = zv[:, k].min(), zv[:, k].max()
         if k == 1 and n == 2:
             edges.append(np.array([-0.5, 0.5]))
             continue
-        m = max(1, int(math.ceil((hi - lo) / h - 1e-9)))
-        edges.append(np.linspace(lo, hi, m + 1))
+        edges.append(np.linspace(lo, hi, int(counts[k]) + 1))
     edges1, edges2 = edges
     if n == 2 and n_levels > 1:
         settled = min(max(_settled_sum(model), s_lo), s_hi)
         edge = math.sqrt(2.0) * (theta - settled / n)
         if edge >= h:
             edges1 = _edges_on(edge, math.sqrt(2.0) * R, h)
-    n_box = (edges1.size - 1) * (edges2.size - 1) * n_levels
-    if n_box > 4 * MAX_STATES:
-        raise TooManyStates(
-            f"n_cells={n_cells} gives about {n_box // 2} lattice states (the lattice's limit "
-            f"is {MAX_STATES})"
-        )
+    _check_box(n_cells, (edges1.size - 1) * (edges2.size - 1) * n_levels)
     c1 = 0.5 * (edges1[1:] + edges1[:-1])
     c2 = 0.5 * (edges2[1:] + edges2[:-1])
     if n == 2:

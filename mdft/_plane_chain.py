@@ -22,6 +22,7 @@ from . import _plane_moment
 from ._lattice_chain import (TooManyStates, chain_sum_bounds, pair_parameters,
                              sum_is_constant)
 from ._plane_krylov import krylov_tail
+from ._threads import configured_threads
 
 logger = logging.getLogger(__name__)
 
@@ -285,8 +286,9 @@ def propagate_moments(chain, max_steps, tol, budget=(0.0, 0.0), second=False, fl
     ``escaped``: the mass that reached frontier states and left the chain
     (:func:`build_moment_chain`'s ``near``). ``floor``: mean response times of options
     chosen less often weigh in proportionally. ``in_parts``: run each step in parts on
-    numba's threads (None: with more than one thread, for chains of at least
-    ``_PARTS_MIN_NONZEROS`` nonzeros); in parts the answer is the same whatever the
+    numba's threads (None: with more than one thread configured, for chains of at least
+    ``_PARTS_MIN_NONZEROS`` nonzeros; on a busy machine the parts run on one thread,
+    :mod:`mdft._threads`); in parts the answer is the same whatever the
     number of threads, and differs from the serial one by rounding (the parts' sums are
     added in another order). ``krylov``: try the Krylov tail after ``_KRYLOV_FIRST`` steps,
     and after every doubling of them, until it is within the budget; ``krylov_from``: the
@@ -332,7 +334,7 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
     occ = np.zeros((n, 3))
     errors = np.zeros(3)
     if in_parts is None:
-        in_parts = numba.get_num_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
+        in_parts = configured_threads() > 1 and chain.cols.shape[0] >= _PARTS_MIN_NONZEROS
     use_krylov = krylov and not second and budget[0] > 0.0
     pause = min(krylov_start(krylov_from, early), max_steps) if use_krylov else max_steps
     # the tries left out count as made: the dimensions go on from there

@@ -30,6 +30,7 @@ from ._threshold_bound import (decision_bound, tolerance_level, undecided_answer
                                within_tolerances)
 from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
                                   simulated_answer)
+from ._threads import fitted_to_the_load
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import MAX_STEPS, MAX_THETA, as_count, as_generator, as_scalar
 from .model import MDFTModel
@@ -82,6 +83,13 @@ _EARLY_SHARE = 0.6
 _SIM_OVERRUN = 2.0
 
 
+def _three_options(model=None, *args, **kwargs):
+    """Whether a call of :func:`threshold_probabilities` may run the three-option chain,
+    whose steps run on numba's threads (for :func:`mdft._threads.fitted_to_the_load`)."""
+    return getattr(model, "n_options", None) == 3
+
+
+@fitted_to_the_load(_three_options)
 def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rtol=3e-3,
                             n_cells=None, resolution=None, method="propagate", tol=1e-10,
                             tail_tol=1e-6, max_iter=2_000, max_states=100_000,

@@ -97,6 +97,32 @@ def test_a_deterministic_path_below_theta_is_bounded_by_zero_and_one_reaching_it
     assert decision_bound(model, 0.99 * highest, 200) == 1.0
 
 
+def test_a_noiseless_path_that_touches_theta_is_not_bounded_by_zero():
+    # the kernels sum the mean path in another order than the simulation: at the peak the
+    # simulation computes (and a unit in the last place below it) the path decides, and the
+    # bound must say nothing rather than 0 (without a margin for rounding, 21 of these 59
+    # paths were bounded by 0 at their peak)
+    rng = np.random.default_rng(11)
+    for _ in range(60):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+            model = MDFTModel(rng.uniform(0.0, 2.0, (3, 1)), [1.0], phi1=rng.uniform(0.01, 1.0),
+                              phi2=rng.uniform(0.0, 0.2), beta=rng.uniform(0.0, 15.0),
+                              sigma2=0.0, P0=rng.uniform(-1.5, 1.0, 3))
+        steps = int(rng.integers(1, 40))
+        path = mdft.simulate(model, 1, stopping=mdft.Threshold(1e300, max_steps=steps), rng=0,
+                             n_trajectories=1).trajectories[0, 1:]
+        peak = float(path.max())
+        if peak <= max(np.max(model.P0), 0.0):  # theta must be positive
+            continue
+        for theta in (peak, np.nextafter(peak, -np.inf)):
+            assert decision_bound(model, theta, steps) == 1.0
+            assert decision_bound(model, theta, steps, target=3e-5) == 1.0
+            assert mdft.simulate(model, 1, stopping=mdft.Threshold(theta, max_steps=steps),
+                                 rng=0).choices[0] >= 0
+        assert decision_bound(model, peak * 1.01, steps, target=3e-5) == 0.0
+
+
 @pytest.mark.parametrize("seed, chernoff", [(100 + k, False) for k in range(10)]
                          + [(200 + k, True) for k in range(8)])
 def test_the_bound_lies_above_the_simulated_share_of_decisions(seed, chernoff):

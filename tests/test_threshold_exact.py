@@ -208,6 +208,17 @@ def test_a_lattice_over_its_state_limit_falls_back_or_refuses():
         threshold_probabilities(model, 10.0, n_cells=2000, fallback="raise")
 
 
+def test_a_start_far_below_a_small_threshold_is_refused_before_any_lattice_is_stored():
+    # the lattice's box spans the start: 520 / (1e-9 / 40) cells would need 151 TiB
+    model = MDFTModel([[1.0, 3.0], [3.0, 1.0]], [0.5, 0.5], phi1=0.05, phi2=0.05, beta=10.0,
+                      P0=[-500.0, -20.0])
+    for theta in (1e-9, 1.0):
+        with pytest.raises(ValueError, match=r"gives about \d+ lattice states \(the "
+                                             r"lattice's limit is 300000\)"):
+            threshold_probabilities(model, theta, max_steps=5, fallback="raise")
+    assert threshold_probabilities(model, 1.0, max_steps=5).engine == "simulation"
+
+
 def test_small_noise_compromise_is_not_degenerate():
     # an earlier lattice returned p = [1, 0, 0] and a mean time of 1 step here
     # (theta = 17.5 there; 6 here keeps the test fast, the noise is as small)
