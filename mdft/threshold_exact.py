@@ -205,11 +205,18 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     bounded from the mean path and the spread of the linear dynamics
     (Hoeffding's and Bernstein's bounds on the attention switches, the
     Gaussian noise, a union over options and steps; well under a
-    millisecond). Where that bound is within ``atol`` and, weighed as a
-    rarely chosen option's mean time is, within ``rt_rtol`` (a bound of at
-    most ``0.01 * rt_rtol``), the answer is "undecided" (``engine="bound"``:
+    millisecond; where they miss the tolerances, the Chernoff bound from the
+    attention terms' exact moment generating function, milliseconds). Where
+    that bound is within ``atol`` and, weighed as a rarely chosen option's
+    mean time is, within ``rt_rtol`` (a bound of at most
+    ``0.01 * rt_rtol``), the answer is "undecided" (``engine="bound"``:
     probabilities 0, ``p_undecided`` 1, mean times NaN) with the bound as
     its error, and no chain is built.
+
+    A three-option call runs on numba's threads (``numba.set_num_threads``
+    chooses), but on one where a few empty parallel regions, timed first,
+    show the cores busy; the answer is the same to the bit either way
+    (``docs/threshold_exact.md``, "Decisions").
 
     Every valence ``C (M W + eps)`` sums to zero, so only the feedback ``S``
     moves the summed preference ``s = 1^T P``, deterministically. The chain's
