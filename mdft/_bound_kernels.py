@@ -28,8 +28,8 @@ ROUNDING = 1e-9
 
 @njit
 def _start(S, C, CM, P0):
-    """``(B, nxt, drift)``: the block ``[C M | C | S P0]`` of step ``k = 0``, room for the
-    next one and the options' mean drifts, zero."""
+    """``(B, nxt, drift, size)``: the block ``[C M | C | S P0]`` of step ``k = 0``, room for
+    the next one, and the options' mean drifts and the sums of their terms' sizes, zero."""
     n = S.shape[0]
     m = CM.shape[1]
     B = np.empty((n, m + n + 1))
@@ -40,7 +40,7 @@ def _start(S, C, CM, P0):
         for l in range(n):
             acc += S[i, l] * P0[l]
         B[i, m + n] = acc
-    return B, np.empty_like(B), np.zeros(n)
+    return B, np.empty_like(B), np.zeros(n), np.zeros(n)
 
 
 @njit
@@ -89,6 +89,18 @@ def _gap(theta, start, drift, size):
 
 
 @njit
+def _mean_step(B, nxt, k, i, mean, drift, size, theta):
+    """Add option ``i``'s mean term ``mean`` of step ``k`` to its drift: ``(z, moved)``, its
+    :func:`_gap` below ``theta`` and whether the mean path still changes in floating point
+    (the drift, or ``S^t P0`` against the block before, ``nxt``)."""
+    last = B.shape[1] - 1
+    moved = drift[i] + mean != drift[i] or (k > 0 and nxt[i, last] != B[i, last])
+    drift[i] += mean
+    size[i] += abs(mean)
+    return _gap(theta, B[i, last], drift[i], size[i]), moved
+
+
+@njit
 def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
     """Upper bound on the probability that some preference reaches ``theta`` within
     ``max_steps`` steps of ``P(t) = S P(t-1) + C (M W(t) + eps(t))``.
@@ -100,13 +112,12 @@ def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
     value an attention term takes; the Gaussian terms meet Bernstein's moment condition for
     any ``b``). The union over options and steps bounds the probability of any decision.
     Returns 1.0 (no bound) where some mean reaches ``theta`` (within :data:`ROUNDING`) or
-    a power of ``S`` stops being finite. Once the sums no longer change in floating point, every later step adds
-    the same terms, counted at once.
+    a power of ``S`` stops being finite. Once the sums no longer change in floating point,
+    every later step adds the same terms, counted at once.
     """
     n = S.shape[0]
     m = CM.shape[1]
-    B, nxt, drift = _start(S, C, CM, P0)
-    size = np.zeros(n)
+    B, nxt, drift, size = _start(S, C, CM, P0)
     hoeffding = np.zeros(n)
     variance = np.zeros(n)
     top = np.zeros(n)
@@ -118,15 +129,12 @@ def reach_bound(S, C, CM, w, P0, noise_var, theta, max_steps):
             mean, lo, hi, attention, gauss = _terms(B, w, noise_var, i, m, n)
             new_h = hoeffding[i] + 0.25 * (hi - lo) ** 2 + gauss
             new_v = variance[i] + attention + gauss
-            if (drift[i] + mean != drift[i] or new_h != hoeffding[i]
-                    or new_v != variance[i] or (k > 0 and nxt[i, m + n] != B[i, m + n])):
+            z, moved = _mean_step(B, nxt, k, i, mean, drift, size, theta)
+            if moved or new_h != hoeffding[i] or new_v != variance[i]:
                 settled = False
-            drift[i] += mean
-            size[i] += abs(mean)
             hoeffding[i] = new_h
             variance[i] = new_v
             top[i] = max(top[i], hi - mean)
-            z = _gap(theta, B[i, m + n], drift[i], size[i])
             if not (z > 0.0 and math.isfinite(hoeffding[i])):
                 return 1.0
             if hoeffding[i] > 0.0:
@@ -157,20 +165,18 @@ def chernoff_grid(S, C, CM, w, P0, noise_var, theta, max_steps, n_lambda, spread
     :data:`ROUNDING`), or where ``Z`` has no variance."""
     n = S.shape[0]
     m = CM.shape[1]
-    B, nxt, drift = _start(S, C, CM, P0)
-    size = np.zeros(n)
+    B, nxt, drift, size = _start(S, C, CM, P0)
     variance = np.zeros(n)
+    gaps = np.zeros(n)
     for k in range(max_steps):
         settled = k > 0
         for i in range(n):
             mean, lo, hi, attention, gauss = _terms(B, w, noise_var, i, m, n)
-            if (drift[i] + mean != drift[i] or variance[i] + attention + gauss != variance[i]
-                    or (k > 0 and nxt[i, m + n] != B[i, m + n])):
+            gaps[i], moved = _mean_step(B, nxt, k, i, mean, drift, size, theta)
+            if moved or variance[i] + attention + gauss != variance[i]:
                 settled = False
-            drift[i] += mean
-            size[i] += abs(mean)
             variance[i] += attention + gauss
-            if not _gap(theta, B[i, m + n], drift[i], size[i]) > 0.0:
+            if not gaps[i] > 0.0:
                 return np.empty((0, n_lambda))
         if settled or k + 1 == max_steps:
             break
@@ -178,8 +184,7 @@ def chernoff_grid(S, C, CM, w, P0, noise_var, theta, max_steps, n_lambda, spread
         B, nxt = nxt, B
     grid = np.empty((n, n_lambda))
     for i in range(n):
-        z = _gap(theta, B[i, m + n], drift[i], size[i])
-        centre = z / variance[i] if variance[i] > 0.0 else math.nan
+        centre = gaps[i] / variance[i] if variance[i] > 0.0 else math.nan
         if not 0.0 < centre < math.inf:
             return np.empty((0, n_lambda))
         for l in range(n_lambda):
@@ -207,8 +212,7 @@ def chernoff_bound(S, C, CM, w, P0, noise_var, theta, max_steps, grid, limit):
     n = S.shape[0]
     m = CM.shape[1]
     n_lambda = grid.shape[1]
-    B, nxt, drift = _start(S, C, CM, P0)
-    size = np.zeros(n)
+    B, nxt, drift, size = _start(S, C, CM, P0)
     K = np.zeros((n, n_lambda))
     total = 0.0
     for k in range(max_steps):
@@ -216,11 +220,9 @@ def chernoff_bound(S, C, CM, w, P0, noise_var, theta, max_steps, grid, limit):
         step = 0.0
         for i in range(n):
             mean, lo, hi, attention, gauss = _terms(B, w, noise_var, i, m, n)
-            if drift[i] + mean != drift[i] or (k > 0 and nxt[i, m + n] != B[i, m + n]):
+            z, moved = _mean_step(B, nxt, k, i, mean, drift, size, theta)
+            if moved:
                 settled = False
-            drift[i] += mean
-            size[i] += abs(mean)
-            z = _gap(theta, B[i, m + n], drift[i], size[i])
             if not z > 0.0:
                 return 1.0
             best = math.inf
