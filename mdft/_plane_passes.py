@@ -51,6 +51,10 @@ TAIL_SHARE = 0.01
 # "propagate": a pass whose mass reaching states without rows (left out as
 # never occupied by the coarser pass) exceeds this is built again with every row.
 ESCAPE_MAX = 1e-10
+# Where such a pass's rows held more than this share of the nonzeros of the pass built again,
+# leaving rows out saves too little to risk another escape: the later passes of the call
+# build every row at once.
+NEAR_SHARE_MAX = 0.9
 # A deliberation of at most this many steps on average (the first pass that counts): the
 # walks decide before their sums settle, so the one spread the pilots fit over the whole
 # occupation is least sure, and the closure's spread is probed larger too.
@@ -107,7 +111,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     kappas = [kappa * REFINE] + [kappa / HALF_STEP**j for j in range(2 * MAX_REFINEMENTS + 1)]
     halves = [False] + [j % 2 == 1 for j in range(2 * MAX_REFINEMENTS + 1)]
     state = dict(ref=np.array([float(np.sum(model.P0)), 0.0, 0.0]), delta=PILOT_DELTA,
-                 near=None, krylov_from=None, early=False)
+                 near=None, krylov_from=None, early=False, every_row=False)
     # the occupied region of each pass limits the rows of the next, finer one ("propagate":
     # the solver of the long run has no step limit, so every reachable state may matter)
     limit = solve["method"] == "propagate"
@@ -173,7 +177,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     def run(k, delta, ref_map=None):
         if solve["method"] == "propagate":
             steps = solve["max_steps"]
-            for near in (state["near"], None):
+            near_nonzeros = None
+            for near in (None if state["every_row"] else state["near"], None):
                 chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
                                            near, ref_map)
                 out = propagate_moments(chain, steps, solve["tol"], budget,
@@ -186,6 +191,12 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 # the coarser pass did not foresee where the mass goes: every row after all
                 logger.debug("resolution %.3g: %.2g of the mass left the rows built; "
                              "building every row", k, out[6])
+                near_nonzeros = chain.cols.shape[0]
+            if near_nonzeros is not None:
+                share = near_nonzeros / max(chain.cols.shape[0], 1)
+                state["every_row"] = share > NEAR_SHARE_MAX
+                logger.debug("resolution %.3g: the rows built held %.3g of the nonzeros%s", k,
+                             share, "; every row from now on" if state["every_row"] else "")
             rt_pmf, mass, n_iter, tail_start, occ, tail_err, escaped = out
             state["walks"] = (chain, occ)
             state["near"] = near_occupied(chain, occ)

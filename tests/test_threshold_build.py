@@ -382,6 +382,35 @@ def test_a_pass_whose_mass_escapes_its_rows_is_built_again_with_every_row(monkey
     assert rebuilt.error_probabilities == full.error_probabilities
 
 
+def test_after_an_escape_from_rows_that_left_out_little_every_row_is_built_at_once(
+        monkeypatch, caplog):
+    """Once a pass's mass has left its rows and those rows held more than
+    ``NEAR_SHARE_MAX`` of the nonzeros of the pass built again, the later passes build
+    every row at once (one rebuild in the call, not one per pass); where they held less,
+    each pass still tries the rows near the walks first. Every escape is forced here
+    (``ESCAPE_MAX < 0``), so every answer comes from chains with every row: the same to
+    the bit either way. The one-sided model's rows near the walks hold 0.66-0.76 of the
+    nonzeros."""
+    import mdft
+    from mdft import _plane_passes
+
+    model, theta = _one_sided_model()
+    monkeypatch.setattr(_plane_passes, "ESCAPE_MAX", -1.0)
+    answers, rebuilds = [], []
+    for share_max in (0.5, _plane_passes.NEAR_SHARE_MAX):
+        monkeypatch.setattr(_plane_passes, "NEAR_SHARE_MAX", share_max)
+        caplog.clear()
+        with caplog.at_level(logging.DEBUG, logger="mdft.threshold_exact"):
+            answers.append(mdft.threshold_probabilities(model, theta, max_steps=1000,
+                                                        fallback="raise"))
+        rebuilds.append(caplog.text.count("building every row"))
+    assert rebuilds[0] == 1
+    assert rebuilds[1] >= 5
+    np.testing.assert_array_equal(answers[0].rt_pmf, answers[1].rt_pmf)
+    assert answers[0].resolution == answers[1].resolution
+    assert answers[0].error_mean_rt == answers[1].error_mean_rt
+
+
 def test_benchmark_canonical_sets_are_the_context_effects_at_the_canonical_parameters():
     """``bench_threshold_exact.py --canonical`` runs the option sets of ``mdft.effects``
     with ``w = (.5, .5)``, ``phi1 = .022``, ``phi2 = .05``, ``beta = 12`` and ``sigma2 = 1``
