@@ -10,7 +10,8 @@ benchmark's ranges (``bench_threshold_exact.draw_model``):
 * propagation: wall time per step of the chain with every state occupied (a uniform start,
   so that no row is skipped as empty), divided by the nonzeros;
 * build: wall time of ``build_moment_chain`` divided by the nonzeros;
-* simulation: wall time of ``mdft.simulate`` divided by the trial-steps it ran.
+* simulation: wall time of the fallback's trials (``mdft.simulate.threshold_trials``)
+  divided by the trial-steps they ran.
 
     python benchmarks/bench_threshold_work.py               # 12 models, resolutions 0.71 and 0.5
     python benchmarks/bench_threshold_work.py --models 20 --seed 7 --resolutions 1 0.71
@@ -29,10 +30,10 @@ import time
 import numba
 import numpy as np
 
-import mdft
 from mdft import _plane_moment
 from mdft._plane_chain import (_PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments,
                                tail_track)
+from mdft.simulate import threshold_trials
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_threshold_exact import draw_model  # noqa: E402
@@ -82,7 +83,7 @@ def main(argv=None):
     chain = build_moment_chain(warm, theta, 1.4, ref, 0.5, 100_000)
     propagate_moments(chain, 50, 1e-10)
     occupied_step_seconds(chain, steps=5, repeats=1)
-    mdft.simulate(warm, 1_000, stopping=mdft.Threshold(theta, max_steps=args.max_steps), rng=1)
+    threshold_trials(warm, 1_000, theta, args.max_steps, np.random.default_rng(1))
 
     rng = np.random.default_rng(args.seed)
     prop, build, sim = [], [], []
@@ -105,10 +106,10 @@ def main(argv=None):
             print(f"{k:>5} {'chain ' + str(kappa):>10} {nnz:>10} {step_ns:12.2f} "
                   f"{build_units:8.0f}", flush=True)
         start = time.perf_counter()
-        res = mdft.simulate(model, args.trials,
-                            stopping=mdft.Threshold(theta, max_steps=args.max_steps), rng=1)
+        choices, decision_steps = threshold_trials(model, args.trials, theta, args.max_steps,
+                                                   np.random.default_rng(1))
         seconds = time.perf_counter() - start
-        steps = float(res.decision_steps[res.choices >= 0].sum()) + res.n_undecided * args.max_steps
+        steps = float(np.where(choices >= 0, decision_steps, args.max_steps).sum())
         sim.append(seconds / steps * 1e9)
         print(f"{k:>5} {'simulate':>10} {int(steps):>10} {sim[-1]:12.2f}", flush=True)
     if not prop:
@@ -117,7 +118,8 @@ def main(argv=None):
     unit = float(np.median(prop))
     print(f"\npropagated nonzero-step: median {unit:.2f} ns (range {min(prop):.2f}-{max(prop):.2f})")
     print(f"built nonzero: median {np.median(build):.0f} units (range {min(build):.0f}-{max(build):.0f})")
-    print(f"simulated trial-step: median {np.median(sim):.1f} ns = {np.median(sim) / unit:.0f} units")
+    print(f"simulated trial-step: median {np.median(sim):.1f} ns = "
+          f"{np.median(sim) / unit:.2f} units")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ._validation import as_generator
-from .simulate import Threshold, simulate
+from .simulate import threshold_trials
 
 #: First batch of trials, and the largest number of trials times mean decision steps.
 FIRST_BATCH = 100_000
@@ -132,19 +132,19 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     hist = np.zeros((max_steps, n_opt))
     work = 0.0
     batch = min(PROBE_BATCH, FIRST_BATCH) if budgeted else FIRST_BATCH
-    stopping = Threshold(theta, max_steps=max_steps)
     while True:
-        res = simulate(model, batch, stopping=stopping, rng=gen)
-        chosen = res.choices >= 0
-        steps = res.decision_steps[chosen]
-        opts = res.choices[chosen]
+        choices, all_steps = threshold_trials(model, batch, theta, max_steps, gen)
+        chosen = choices >= 0
+        steps = all_steps[chosen]
+        opts = choices[chosen]
+        undecided = batch - int(chosen.sum())
         counts += np.bincount(opts, minlength=n_opt)
-        n_undecided += int(res.n_undecided)
+        n_undecided += undecided
         sums += np.bincount(opts, weights=steps, minlength=n_opt)
         squares += np.bincount(opts, weights=steps.astype(np.float64) ** 2, minlength=n_opt)
         hist += np.bincount((steps - 1) * n_opt + opts,
                             minlength=max_steps * n_opt).reshape(max_steps, n_opt)
-        work += float(steps.sum()) + float(res.n_undecided) * max_steps
+        work += float(steps.sum()) + float(undecided) * max_steps
         n = int(counts.sum()) + n_undecided
         err_p, err_rt = _errors(counts, n_undecided, sums, squares)
         if n >= FIRST_BATCH and err_p <= atol and err_rt <= rt_rtol:

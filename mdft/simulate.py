@@ -473,15 +473,8 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
         choices[:n_trajectories] = rec_choices
         steps[:n_trajectories] = rec_steps
         args = (S, CM, C, noise_sd, cuts, P0, n_steps, theta, threshold)
-        with np.errstate(over="ignore"):
-            if n_rest * n_steps >= _PARALLEL_WORK:
-                _kernels.plain_chunks(chunk_states, bounds, *args, choices[n_trajectories:],
-                                      steps[n_trajectories:])
-            else:
-                for c in _nonempty_chunks(bounds):
-                    lo, hi = bounds[c], bounds[c + 1]
-                    _kernels.plain_chunk(chunk_states[c], lo, hi, *args, choices[lo:hi],
-                                         steps[lo:hi])
+        _run_chunks(_kernels.plain_chunks, _kernels.plain_chunk, chunk_states, bounds, args,
+                    choices, steps, n_rest * n_steps)
         counts += np.bincount(choices[n_trajectories:][choices[n_trajectories:] >= 0],
                               minlength=n)
         if not threshold:
@@ -512,6 +505,54 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
         trajectories=trajectories,
         trajectory_choices=trajectory_choices,
     )
+
+
+def _run_chunks(parallel, serial, states, bounds, args, choices, steps, work):
+    """Run the trials ``bounds[0] <= k < bounds[-1]`` chunk by chunk (chunk ``c`` on the
+    stream ``states[c]``), writing ``choices[k]`` and ``steps[k]``: in parallel where the
+    ``work`` (trials times steps) pays for waking the thread pool, else one chunk after
+    another in the calling thread; the same result either way."""
+    with np.errstate(over="ignore"):
+        if work >= _PARALLEL_WORK:
+            parallel(states, bounds, *args, choices[bounds[0]:], steps[bounds[0]:])
+        else:
+            for c in _nonempty_chunks(bounds):
+                lo, hi = bounds[c], bounds[c + 1]
+                serial(states[c], lo, hi, *args, choices[lo:hi], steps[lo:hi])
+
+
+def threshold_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
+                     generator: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Choices and decision steps (``-1`` undecided) of ``n_samples`` trials of threshold
+    stopping, for the simulation fallback of :func:`mdft.threshold_probabilities`, which
+    has checked the model and ``theta``.
+
+    With two or three options the noise ``C eps`` is drawn from its principal directions
+    (:func:`mdft._kernels.reduced_trial`): one normal fewer per step with the contrast
+    matrix, the same distribution as :func:`simulate`'s trials but not the same trials for
+    the same stream. Other models run :func:`simulate`'s kernels. The trials are split into
+    the same :data:`N_CHUNKS` streams, so a generator in the same state gives the same
+    trials on any number of threads.
+    """
+    n = model.n_options
+    S = np.ascontiguousarray(model.S, dtype=np.float64)
+    C = np.ascontiguousarray(model.C, dtype=np.float64)
+    L = _noise_factor(S, C, model.sigma2, 1)
+    if n > 3 or L.shape[1] > 2 or not np.isfinite(L).all():
+        res = simulate(model, n_samples, stopping=Threshold(theta, max_steps=max_steps),
+                       rng=generator)
+        assert res.choices is not None and res.decision_steps is not None  # threshold stopping
+        return res.choices, res.decision_steps
+    states = _stream_states(generator, N_CHUNKS)
+    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_samples) // N_CHUNKS
+    choices = np.empty(n_samples, dtype=np.int64)
+    steps = np.empty(n_samples, dtype=np.int64)
+    args = (S, np.ascontiguousarray(C @ model.M), np.ascontiguousarray(L),
+            _attention_cuts(model.w), np.ascontiguousarray(model.P0, dtype=np.float64),
+            max_steps, float(theta))
+    _run_chunks(_kernels.reduced_chunks, _kernels.reduced_chunk, states, bounds, args,
+                choices, steps, n_samples * max_steps)
+    return choices, steps
 
 
 # ---------------------------------------------------------------- decide

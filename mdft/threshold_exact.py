@@ -69,12 +69,13 @@ _FIRST_HALF_REACH = 10.0
 _FIRST_PAIR_FACTOR = 1.0 / (REFINE - 1.0)
 # Three options, simulation fallback: the cost of building a nonzero of the chain and of
 # simulating one step of one trial, in units of propagating a nonzero by one step (measured
-# with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 14 (17 before
-# the trials held their stream in local variables, 30 before two and three options stepped
-# in scalars), building a nonzero about 150, 100-590 from chain to chain); the fallback
-# simulates when that costs less than the next refinement.
+# with benchmarks/bench_threshold_work.py: a simulated trial-step costs about 10 (14 before
+# the fallback's trials drew one normal fewer per step, 17 before they held their stream in
+# local variables, 30 before two and three options stepped in scalars), building a nonzero
+# about 150, 100-590 from chain to chain); the fallback simulates when that costs less than
+# the next refinement.
 _BUILD_WORK = 150.0
-_SIM_STEP_WORK = 14.0
+_SIM_STEP_WORK = 10.0
 # The same count decides before the first pass that counts, from the first pilot's answer:
 # where simulating costs less than _EARLY_SHARE of that pass, its probes and the next (the
 # coarse pilot's prediction is rougher than a counted pass's), the call simulates; if the

@@ -69,7 +69,7 @@ class WarmupReport:
 def _steps():
     """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
-    from .simulate import FixedTime, Threshold, decide, simulate
+    from .simulate import FixedTime, Threshold, decide, simulate, threshold_trials
     from . import _plane_krylov, _threshold_bound
     from .threshold_exact import threshold_probabilities
 
@@ -93,7 +93,10 @@ def _steps():
         ("threshold_probabilities", lambda: (
             threshold_probabilities(m2, 3.0, max_steps=20, n_cells=5),
             threshold_probabilities(m3, 3.0, max_steps=20),
-            _plane_krylov.compile_kernels(), _threshold_bound.compile_kernels())),
+            _plane_krylov.compile_kernels(), _threshold_bound.compile_kernels(),
+            # the simulation fallback's trials, in the calling thread and in parallel
+            threshold_trials(m3, 64, 5.0, 50, np.random.default_rng(0)),
+            threshold_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0)))),
     ]
 
 

@@ -29,6 +29,7 @@ from mdft.simulate import (
     _fixed_time_shortcut,
     _noise_factor,
     _stream_states,
+    threshold_trials,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,6 +206,73 @@ def test_small_trial_equals_the_generic_kernel_to_the_bit(n_options):
                                             np.empty((1, n_options)), False)
             assert kernel(fast, *args, P) == expected
         np.testing.assert_array_equal(fast, slow)
+
+
+def _random_threshold_model(rng, n_options, noisy=True):
+    n_attributes = int(rng.integers(1, 4))
+    model = make_model(rng.uniform(0.0, 4.0, (n_options, n_attributes)),
+                       rng.dirichlet(np.ones(n_attributes)),
+                       phi1=float(rng.uniform(0.005, 0.1)), phi2=float(rng.uniform(0.01, 0.1)),
+                       beta=float(rng.uniform(0.5, 15.0)),
+                       sigma2=float(np.exp(rng.uniform(np.log(0.1), np.log(4.0)))) if noisy
+                       else 0.0,
+                       P0=rng.uniform(-1.0, 1.0, n_options))
+    return model, float(rng.uniform(2.0, 12.0))
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_threshold_trials_have_the_distribution_of_simulate(n_options):
+    # the fallback's trials draw the noise C eps from its n - 1 principal directions: on
+    # random models across the documented range (sigma2 log-uniform on [0.1, 4], one to
+    # three attributes, P0 off zero) their choices, undecided share and mean steps agree
+    # with simulate's within 4.5 standard errors of the difference (60,000 trials each)
+    rng = np.random.default_rng(40 + n_options)
+    n = 60_000
+    for draw in range(6):
+        model, theta = _random_threshold_model(rng, n_options)
+        L = _noise_factor(model.S, model.C, model.sigma2, 1)
+        assert L.shape[1] == n_options - 1
+        np.testing.assert_allclose(L @ L.T, model.sigma2 * model.C @ model.C.T, atol=1e-12)
+        choices, steps = threshold_trials(model, n, theta, 300, np.random.default_rng(draw))
+        res = mdft.simulate(model, n, stopping=mdft.Threshold(theta, max_steps=300),
+                            rng=100 + draw)
+        mine = np.bincount(choices + 1, minlength=n_options + 1) / n
+        theirs = np.bincount(res.choices + 1, minlength=n_options + 1) / n
+        assert_within_3se(mine, theirs, n, n, n_se=4.5)
+        for i in range(n_options):
+            a = steps[choices == i].astype(float)
+            b = res.decision_steps[res.choices == i].astype(float)
+            if a.size < 100 or b.size < 100:
+                continue
+            se = math.hypot(a.std() / math.sqrt(a.size), b.std() / math.sqrt(b.size))
+            assert abs(a.mean() - b.mean()) <= 4.5 * se + 1e-12, (draw, i)
+
+
+@pytest.mark.parametrize("n_options", [2, 3, 4])
+def test_threshold_trials_without_noise_are_simulates_trials(n_options):
+    # with sigma2 = 0 neither kernel draws a normal, so from the same generator the trials
+    # are simulate's to the bit (four options run simulate's own kernels)
+    rng = np.random.default_rng(7 + n_options)
+    for draw in range(3):
+        model, theta = _random_threshold_model(rng, n_options, noisy=False)
+        choices, steps = threshold_trials(model, 3_000, theta, 200, np.random.default_rng(draw))
+        res = mdft.simulate(model, 3_000, stopping=mdft.Threshold(theta, max_steps=200),
+                            rng=np.random.default_rng(draw))
+        np.testing.assert_array_equal(choices, res.choices)
+        np.testing.assert_array_equal(steps, res.decision_steps)
+
+
+def test_threshold_trials_are_the_same_in_parallel_and_serially(monkeypatch):
+    # the same chunks and streams whether the chunks run on numba's threads or one after
+    # another in the calling thread
+    module = sys.modules["mdft.simulate"]
+    model, theta = _random_threshold_model(np.random.default_rng(3), 3)
+    runs = []
+    for work in (0, 10**18):  # everything in parallel, then everything serial
+        monkeypatch.setattr(module, "_PARALLEL_WORK", work)
+        runs.append(threshold_trials(model, 5_000, theta, 400, np.random.default_rng(1)))
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("n_options", [2, 3, 4])
