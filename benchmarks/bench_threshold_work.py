@@ -10,7 +10,7 @@ benchmark's ranges (``bench_threshold_exact.draw_model``):
 * propagation: wall time per step of the chain with every state occupied (a uniform start,
   so that no row is skipped as empty), divided by the nonzeros;
 * build: wall time of ``build_moment_chain`` divided by the nonzeros;
-* simulation: wall time of the fallback's trials (``mdft.simulate.threshold_trials``)
+* simulation: wall time of the fallback's trials (``mdft.simulate._fallback_trials``)
   divided by the trial-steps they ran.
 
     python benchmarks/bench_threshold_work.py               # 12 models, resolutions 0.71 and 0.5
@@ -33,7 +33,7 @@ import numpy as np
 from mdft import _plane_moment
 from mdft._plane_chain import (_PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments,
                                tail_track)
-from mdft.simulate import threshold_trials
+from mdft.simulate import _fallback_trials
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_threshold_exact import draw_model  # noqa: E402
@@ -83,7 +83,7 @@ def main(argv=None):
     chain = build_moment_chain(warm, theta, 1.4, ref, 0.5, 100_000)
     propagate_moments(chain, 50, 1e-10)
     occupied_step_seconds(chain, steps=5, repeats=1)
-    threshold_trials(warm, 1_000, theta, args.max_steps, np.random.default_rng(1))
+    _fallback_trials(warm, 1_000, theta, args.max_steps, np.random.default_rng(1))
 
     rng = np.random.default_rng(args.seed)
     prop, build, sim = [], [], []
@@ -106,7 +106,7 @@ def main(argv=None):
             print(f"{k:>5} {'chain ' + str(kappa):>10} {nnz:>10} {step_ns:12.2f} "
                   f"{build_units:8.0f}", flush=True)
         start = time.perf_counter()
-        choices, decision_steps = threshold_trials(model, args.trials, theta, args.max_steps,
+        choices, decision_steps = _fallback_trials(model, args.trials, theta, args.max_steps,
                                                    np.random.default_rng(1))
         seconds = time.perf_counter() - start
         steps = float(np.where(choices >= 0, decision_steps, args.max_steps).sum())

@@ -431,7 +431,12 @@ def reduced_chunk(state, first, stop, S, CM, L, cuts, P0, n_steps, theta, choice
 
 @njit_parallel
 def reduced_chunks(states, bounds, S, CM, L, cuts, P0, n_steps, theta, choices, steps):
-    """:func:`reduced_chunk` for every chunk ``c`` (stream ``states[c]``), in parallel."""
+    """:func:`reduced_chunk` for every chunk ``c`` (stream ``states[c]``), in parallel.
+
+    The loop is :func:`plain_chunks`' own. One parallel kernel taking the chunk kernel as
+    an argument would serve both, but numba's disk cache misses for a kernel with a
+    function argument in every new process (it compiles again each time), which
+    :func:`mdft.warmup` could not then save."""
     n_chunks = bounds.shape[0] - 1
     origin = bounds[0]
     for c in prange(n_chunks):

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ._validation import as_generator
-from .simulate import threshold_trials
+from .simulate import _fallback_trials
 
 #: First batch of trials, and the largest number of trials times mean decision steps.
 FIRST_BATCH = 100_000
@@ -133,7 +133,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     work = 0.0
     batch = min(PROBE_BATCH, FIRST_BATCH) if budgeted else FIRST_BATCH
     while True:
-        choices, all_steps = threshold_trials(model, batch, theta, max_steps, gen)
+        choices, all_steps = _fallback_trials(model, batch, theta, max_steps, gen)
         chosen = choices >= 0
         steps = all_steps[chosen]
         opts = choices[chosen]

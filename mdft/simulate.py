@@ -521,7 +521,7 @@ def _run_chunks(parallel, serial, states, bounds, args, choices, steps, work):
                 serial(states[c], lo, hi, *args, choices[lo:hi], steps[lo:hi])
 
 
-def threshold_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
+def _fallback_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
                      generator: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Choices and decision steps (``-1`` undecided) of ``n_samples`` trials of threshold
     stopping, for the simulation fallback of :func:`mdft.threshold_probabilities`, which

@@ -69,7 +69,7 @@ class WarmupReport:
 def _steps():
     """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
-    from .simulate import FixedTime, Threshold, decide, simulate, threshold_trials
+    from .simulate import FixedTime, Threshold, _fallback_trials, decide, simulate
     from . import _plane_krylov, _threshold_bound
     from .threshold_exact import threshold_probabilities
 
@@ -95,8 +95,8 @@ def _steps():
             threshold_probabilities(m3, 3.0, max_steps=20),
             _plane_krylov.compile_kernels(), _threshold_bound.compile_kernels(),
             # the simulation fallback's trials, in the calling thread and in parallel
-            threshold_trials(m3, 64, 5.0, 50, np.random.default_rng(0)),
-            threshold_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0)))),
+            _fallback_trials(m3, 64, 5.0, 50, np.random.default_rng(0)),
+            _fallback_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0)))),
     ]
 
 

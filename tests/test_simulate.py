@@ -26,10 +26,10 @@ from mdft import _kernels
 from mdft.simulate import (
     N_CHUNKS,
     _attention_cuts,
+    _fallback_trials,
     _fixed_time_shortcut,
     _noise_factor,
     _stream_states,
-    threshold_trials,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -221,7 +221,7 @@ def _random_threshold_model(rng, n_options, noisy=True):
 
 
 @pytest.mark.parametrize("n_options", [2, 3])
-def test_threshold_trials_have_the_distribution_of_simulate(n_options):
+def test_fallback_trials_have_the_distribution_of_simulate(n_options):
     # the fallback's trials draw the noise C eps from its n - 1 principal directions: on
     # random models across the documented range (sigma2 log-uniform on [0.1, 4], one to
     # three attributes, P0 off zero) their choices, undecided share and mean steps agree
@@ -233,7 +233,7 @@ def test_threshold_trials_have_the_distribution_of_simulate(n_options):
         L = _noise_factor(model.S, model.C, model.sigma2, 1)
         assert L.shape[1] == n_options - 1
         np.testing.assert_allclose(L @ L.T, model.sigma2 * model.C @ model.C.T, atol=1e-12)
-        choices, steps = threshold_trials(model, n, theta, 300, np.random.default_rng(draw))
+        choices, steps = _fallback_trials(model, n, theta, 300, np.random.default_rng(draw))
         res = mdft.simulate(model, n, stopping=mdft.Threshold(theta, max_steps=300),
                             rng=100 + draw)
         mine = np.bincount(choices + 1, minlength=n_options + 1) / n
@@ -249,20 +249,20 @@ def test_threshold_trials_have_the_distribution_of_simulate(n_options):
 
 
 @pytest.mark.parametrize("n_options", [2, 3, 4])
-def test_threshold_trials_without_noise_are_simulates_trials(n_options):
+def test_fallback_trials_without_noise_are_simulates_trials(n_options):
     # with sigma2 = 0 neither kernel draws a normal, so from the same generator the trials
     # are simulate's to the bit (four options run simulate's own kernels)
     rng = np.random.default_rng(7 + n_options)
     for draw in range(3):
         model, theta = _random_threshold_model(rng, n_options, noisy=False)
-        choices, steps = threshold_trials(model, 3_000, theta, 200, np.random.default_rng(draw))
+        choices, steps = _fallback_trials(model, 3_000, theta, 200, np.random.default_rng(draw))
         res = mdft.simulate(model, 3_000, stopping=mdft.Threshold(theta, max_steps=200),
                             rng=np.random.default_rng(draw))
         np.testing.assert_array_equal(choices, res.choices)
         np.testing.assert_array_equal(steps, res.decision_steps)
 
 
-def test_threshold_trials_are_the_same_in_parallel_and_serially(monkeypatch):
+def test_fallback_trials_are_the_same_in_parallel_and_serially(monkeypatch):
     # the same chunks and streams whether the chunks run on numba's threads or one after
     # another in the calling thread
     module = sys.modules["mdft.simulate"]
@@ -270,7 +270,7 @@ def test_threshold_trials_are_the_same_in_parallel_and_serially(monkeypatch):
     runs = []
     for work in (0, 10**18):  # everything in parallel, then everything serial
         monkeypatch.setattr(module, "_PARALLEL_WORK", work)
-        runs.append(threshold_trials(model, 5_000, theta, 400, np.random.default_rng(1)))
+        runs.append(_fallback_trials(model, 5_000, theta, 400, np.random.default_rng(1)))
     for a, b in zip(*runs):
         np.testing.assert_array_equal(a, b)
 

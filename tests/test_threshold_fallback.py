@@ -104,13 +104,13 @@ def _counted_trials(monkeypatch):
     from mdft import _threshold_fallback as fb
 
     trials = []
-    run = fb.threshold_trials
+    run = fb._fallback_trials
 
     def counted(model, n, *args):
         trials.append(n)
         return run(model, n, *args)
 
-    monkeypatch.setattr(fb, "threshold_trials", counted)
+    monkeypatch.setattr(fb, "_fallback_trials", counted)
     return trials
 
 
@@ -247,7 +247,7 @@ def test_fallback_far_over_its_budget_refuses_without_simulating(monkeypatch):
     def no_simulation(*args, **kwargs):
         raise AssertionError("the fallback simulated")
 
-    monkeypatch.setattr(fb, "threshold_trials", no_simulation)
+    monkeypatch.setattr(fb, "_fallback_trials", no_simulation)
     monkeypatch.setattr(fb, "MAX_WORK", 1e5)
     with pytest.raises(ValueError, match=r"the chain refused \(.*\), and its simulation "
                                          r"fallback would need .* \(predicted from the "
