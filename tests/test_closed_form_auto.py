@@ -332,11 +332,15 @@ def test_bad_method_and_tol():
 
 def test_exact_mixture_refuses_a_numerically_singular_noise():
     # rho(S) = 3.8: after 20 steps the noise of P_1 - P_2 is lost to rounding
+    # (each call first warns that S is unstable, then refuses)
+    def unstable():
+        return pytest.warns(mdft.UnstableFeedbackWarning, match="spectral radius")
+
     m = canonical([[1, 3], [3, 1], [2, 2]], phi2=2.0)
-    with pytest.raises(ValueError, match=r"numerically singular .*use mdft.simulate"):
+    with unstable(), pytest.raises(ValueError, match=r"numerically singular .*use mdft.simulate"):
         mixture_choice_probabilities(m, 20, n_sequences=2000, rng=0)
-    with pytest.raises(ValueError, match=r"numerically singular .*n_steps"):
+    with unstable(), pytest.raises(ValueError, match=r"numerically singular .*n_steps"):
         choice_probabilities(m, 20)
     m4 = canonical([[1, 3], [3, 1], [2, 2], [0.5, 2.5]], phi2=2.0)  # four options too
-    with pytest.raises(ValueError, match=r"numerically singular .*use mdft.simulate"):
+    with unstable(), pytest.raises(ValueError, match=r"numerically singular .*use mdft.simulate"):
         mixture_choice_probabilities(m4, 20, n_sequences=2000, rng=0)

@@ -6,12 +6,20 @@ inside a temporary working directory, so the figures it writes do not litter the
 
 import os
 import re
+import warnings
 from pathlib import Path
 
 import pytest
 
 TUTORIALS = sorted((Path(__file__).resolve().parents[1] / "docs" / "tutorials").glob("*.md"))
 BLOCK = re.compile(r"^```python\n(.*?)^```", re.DOTALL | re.MULTILINE)
+# The warnings of mdft (and numpy's RuntimeWarnings) that a tutorial's text says its code
+# raises: tutorial -> [(category name, part of the message)]. Each must be raised, and any
+# other such warning fails the test: a tutorial should not leave the reader with a warning it
+# does not explain. Other libraries' warnings are passed on to pytest.
+EXPECTED_WARNINGS = {
+    "fitting": [("FitConvergenceWarning", "phi2 on a bound")],
+}
 
 
 def python_blocks(path: Path) -> list[str]:
@@ -29,7 +37,23 @@ def test_tutorial_runs(path, tmp_path, monkeypatch):
     assert blocks, f"{path.name} has no ```python blocks to run"
     monkeypatch.chdir(tmp_path)
     namespace = {"__name__": f"tutorial_{path.stem}"}
-    for i, block in enumerate(blocks):
-        code = compile(block, f"{path.name}[block {i}]", "exec")
-        exec(code, namespace)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for i, block in enumerate(blocks):
+            code = compile(block, f"{path.name}[block {i}]", "exec")
+            exec(code, namespace)
     plt.close("all")
+    expected = EXPECTED_WARNINGS.get(path.stem, [])
+    for name, part in expected:
+        assert any(w.category.__name__ == name and part in str(w.message) for w in caught), \
+            f"{path.name} says it raises {name} ({part!r}), but it did not"
+    unexplained = []
+    for w in caught:
+        if any(w.category.__name__ == name and part in str(w.message) for name, part in expected):
+            continue
+        if w.category.__module__.startswith("mdft") or issubclass(w.category, RuntimeWarning):
+            unexplained.append(f"{w.category.__name__}: {w.message}")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    assert not unexplained, \
+        f"{path.name} raised warnings its text does not explain: {unexplained}"
