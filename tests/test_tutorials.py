@@ -4,7 +4,6 @@ A tutorial that no longer runs is a failing test. Each tutorial runs in a fresh 
 inside a temporary working directory, so the figures it writes do not litter the tree.
 """
 
-import os
 import re
 import warnings
 from pathlib import Path
