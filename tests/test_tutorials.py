@@ -25,6 +25,11 @@ def python_blocks(path: Path) -> list[str]:
     return BLOCK.findall(path.read_text())
 
 
+def _is(w, name, part):
+    """Whether the recorded warning ``w`` is of the category named ``name`` and says ``part``."""
+    return w.category.__name__ == name and part in str(w.message)
+
+
 @pytest.mark.parametrize("path", TUTORIALS, ids=[p.stem for p in TUTORIALS])
 def test_tutorial_runs(path, tmp_path, monkeypatch):
     import matplotlib
@@ -44,11 +49,11 @@ def test_tutorial_runs(path, tmp_path, monkeypatch):
     plt.close("all")
     expected = EXPECTED_WARNINGS.get(path.stem, [])
     for name, part in expected:
-        assert any(w.category.__name__ == name and part in str(w.message) for w in caught), \
+        assert any(_is(w, name, part) for w in caught), \
             f"{path.name} says it raises {name} ({part!r}), but it did not"
     unexplained = []
     for w in caught:
-        if any(w.category.__name__ == name and part in str(w.message) for name, part in expected):
+        if any(_is(w, name, part) for name, part in expected):
             continue
         if w.category.__module__.startswith("mdft") or issubclass(w.category, RuntimeWarning):
             unexplained.append(f"{w.category.__name__}: {w.message}")
