@@ -360,18 +360,10 @@ def small_trial(state, S, CM, C, noise_sd, cuts, P0, n_steps, theta, use_thresho
     return argmax_random_ties(P, state), t
 
 
-@njit
-def reduced_trial(state, S, CM, L, cuts, P0, n_steps, theta, P):
-    """A threshold trial of two or three options whose noise ``C eps`` is drawn as ``L z``
-    from ``r = L.shape[1] <= 2`` normals, ``L L^T = sigma2 C C^T``
-    (:func:`mdft.simulate._noise_factor` over one step). With the contrast matrix
-    ``C eps`` lies in the ``n - 1`` dimensions orthogonal to the ones vector, so this
-    draws one normal fewer per step than :func:`small_trial`: the same distribution of
-    choices and steps, about 1.3 times as fast with three options, but not the same trials
-    from the same stream (the simulation fallback of ``threshold_probabilities`` runs it;
-    ``simulate`` keeps :func:`small_trial`). ``(choice, step)``, ``(-1, -1)`` undecided.
-    """
-    three = P0.shape[0] == 3
+@njit_inline
+def reduced_coefficients(S, L, three):
+    """The entries of ``S`` (row by row, zero beyond a 2 x 2 ``S``) and of ``L`` (row by
+    row, zero beyond its ``r`` columns), a 15-tuple for the kernels to unpack into scalars."""
     r = L.shape[1]
     s00, s01, s10, s11 = _corner(S)
     s02 = s12 = s20 = s21 = s22 = 0.0
@@ -388,32 +380,64 @@ def reduced_trial(state, S, CM, L, cuts, P0, n_steps, theta, P):
         l11 = L[1, 1]
         if three:
             l21 = L[2, 1]
+    return (s00, s01, s02, s10, s11, s12, s20, s21, s22, l00, l01, l10, l11, l20, l21)
+
+
+@njit_inline
+def reduced_draws(w0, w1, w2, w3, cuts, r):
+    """A step's attended attribute and ``r <= 2`` normals from the stream's words held in
+    local variables: ``(j, z0, z1, w0, w1, w2, w3)`` (``z`` zero beyond ``r``)."""
+    z0 = z1 = 0.0
+    j, w0, w1, w2, w3 = attribute_words(w0, w1, w2, w3, cuts)
+    if r >= 1:
+        z0, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    if r >= 2:
+        z1, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+    return j, z0, z1, w0, w1, w2, w3
+
+
+@njit_inline
+def reduced_choice(state, P, p0, p1, p2, three):
+    """The option chosen by the preferences ``(p0, p1, p2)`` that reached the threshold
+    (:func:`argmax_random_ties`, after the stream's words are stored)."""
+    P[0] = p0
+    P[1] = p1
+    if three:
+        P[2] = p2
+    return argmax_random_ties(P, state)
+
+
+@njit
+def reduced_trial(state, S, CM, L, cuts, P0, n_steps, theta, P):
+    """A threshold trial of two or three options whose noise ``C eps`` is drawn as ``L z``
+    from ``r = L.shape[1] <= 2`` normals, ``L L^T = sigma2 C C^T``
+    (:func:`mdft.simulate._noise_factor` over one step). With the contrast matrix
+    ``C eps`` lies in the ``n - 1`` dimensions orthogonal to the ones vector, so this
+    draws one normal fewer per step than :func:`small_trial`: the same distribution of
+    choices and steps, about 1.3 times as fast with three options, but not the same trials
+    from the same stream (the simulation fallback of ``threshold_probabilities`` runs it;
+    ``simulate`` keeps :func:`small_trial`). ``(choice, step)``, ``(-1, -1)`` undecided.
+    """
+    three = P0.shape[0] == 3
+    r = L.shape[1]
+    (s00, s01, s02, s10, s11, s12, s20, s21, s22,
+     l00, l01, l10, l11, l20, l21) = reduced_coefficients(S, L, three)
     w0, w1, w2, w3 = load_words(state)
     p0 = P0[0]
     p1 = P0[1]
     p2 = P0[2] if three else 0.0
-    z0 = z1 = 0.0
     for t in range(1, n_steps + 1):
-        j, w0, w1, w2, w3 = attribute_words(w0, w1, w2, w3, cuts)
-        if r >= 1:
-            z0, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
-        if r >= 2:
-            z1, w0, w1, w2, w3 = normal_words(w0, w1, w2, w3)
+        j, z0, z1, w0, w1, w2, w3 = reduced_draws(w0, w1, w2, w3, cuts, r)
+        # written out here and in mdft._control_kernels.controlled_trial: a helper taking
+        # the coefficients as a tuple made this kernel 1.35 times slower
         q0 = s00 * p0 + s01 * p1 + s02 * p2 + CM[0, j] + l00 * z0 + l01 * z1
         q1 = s10 * p0 + s11 * p1 + s12 * p2 + CM[1, j] + l10 * z0 + l11 * z1
-        q2 = 0.0
         if three:
-            q2 = s20 * p0 + s21 * p1 + s22 * p2 + CM[2, j] + l20 * z0 + l21 * z1
-        p0 = q0
-        p1 = q1
-        p2 = q2
+            p2 = s20 * p0 + s21 * p1 + s22 * p2 + CM[2, j] + l20 * z0 + l21 * z1
+        p0, p1 = q0, q1
         if p0 >= theta or p1 >= theta or (three and p2 >= theta):
             store_words(state, w0, w1, w2, w3)
-            P[0] = p0
-            P[1] = p1
-            if three:
-                P[2] = p2
-            return argmax_random_ties(P, state), t
+            return reduced_choice(state, P, p0, p1, p2, three), t
     store_words(state, w0, w1, w2, w3)
     return -1, -1
 

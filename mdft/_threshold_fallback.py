@@ -15,8 +15,10 @@ import math
 
 import numpy as np
 
+from ._control_kernels import N_CONTROLS
+from ._control_variates import ControlledSums
 from ._validation import as_generator
-from .simulate import _fallback_trials
+from .simulate import _controlled_trials, _fallback_trials
 
 #: First batch of trials, and the largest number of trials times mean decision steps.
 FIRST_BATCH = 100_000
@@ -29,6 +31,17 @@ MAX_WORK = 2_000_000_000
 #: this many times MAX_WORK (the prediction is about right; near the budget itself, the first
 #: batch of trials decides).
 PREDICTED_OVER = 2.0
+#: Time of a trial with control variates, in trials without, is about CONTROLLED_COST plus
+#: CONTROLLED_TRIAL_COST over the mean steps of a trial (each trial adds its sums to its
+#: fold's totals): measured, twice, 2.13-2.20 at 1,400 steps a trial, 2.2-2.3 at 170-280
+#: and 2.4-2.7 at 39-55 (200,000 trials of seven models on two threads).
+CONTROLLED_COST = 2.15
+CONTROLLED_TRIAL_COST = 18.0
+#: Where the chain's last answer predicts more than this many times the plain trials that a
+#: controlled batch is worth beyond the first batch, the controlled trials start at once.
+CONTROLLED_AT_ONCE = 2.0
+#: Options chosen fewer times than this have the plain mean time of the controlled trials.
+CONTROLLED_MIN_COUNT = 100
 #: Options chosen less often than this weigh in on the mean-time error with p / this.
 RT_WEIGHT_FLOOR = 0.01
 #: Seed of the fallback's trials when the caller gives none (so calls are repeatable).
@@ -109,56 +122,223 @@ def over_budget(reason, trials, per_trial, how=""):
     )
 
 
+class _Tally:
+    """Counts, sums and squares of the decision steps by option, the histogram of the steps,
+    and the trial-steps simulated, over a run of trials."""
+
+    def __init__(self, n_options, max_steps):
+        self.counts = np.zeros(n_options, dtype=np.int64)
+        self.n_undecided = 0
+        self.sums = np.zeros(n_options)
+        self.squares = np.zeros(n_options)
+        self.hist = np.zeros((max_steps, n_options))
+        self.work = 0.0
+
+    @property
+    def n(self):
+        return int(self.counts.sum()) + self.n_undecided
+
+    def add(self, choices, all_steps):
+        n_opt = self.counts.shape[0]
+        chosen = choices >= 0
+        steps = all_steps[chosen]
+        opts = choices[chosen]
+        undecided = choices.shape[0] - int(chosen.sum())
+        self.counts += np.bincount(opts, minlength=n_opt)
+        self.n_undecided += undecided
+        self.sums += np.bincount(opts, weights=steps, minlength=n_opt)
+        self.squares += np.bincount(opts, weights=steps.astype(np.float64) ** 2,
+                                    minlength=n_opt)
+        self.hist += np.bincount((steps - 1) * n_opt + opts,
+                                 minlength=self.hist.size).reshape(self.hist.shape)
+        self.work += float(steps.sum()) + float(undecided) * self.hist.shape[0]
+
+    def merge(self, other):
+        """Add the trials of another tally."""
+        self.counts += other.counts
+        self.n_undecided += other.n_undecided
+        self.sums += other.sums
+        self.squares += other.squares
+        self.hist += other.hist
+        self.work += other.work
+
+    def errors(self):
+        return _errors(self.counts, self.n_undecided, self.sums, self.squares)
+
+    def answer(self, make_result, err_p, err_rt):
+        """The plain estimates: shares of the trials and mean steps."""
+        n = self.n
+        counts = self.counts
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_rt = np.where(counts > 0, self.sums / np.where(counts > 0, counts, 1), np.nan)
+        return make_result(counts / n, self.n_undecided / n, self.hist / n, mean_rt, n, err_p,
+                           err_rt)
+
+
+def controlled_cost(steps_per_trial):
+    """Time of a trial with control variates, in trials without, for trials of
+    ``steps_per_trial`` steps on average."""
+    return CONTROLLED_COST + CONTROLLED_TRIAL_COST / max(steps_per_trial, 1.0)
+
+
+def _trials_needed(n, err_p, err_rt, atol, rt_rtol):
+    """Trials that bring the errors within the tolerances, as they shrink as 1 / sqrt(n)."""
+    return n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2)
+
+
 def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result,
-                     max_work=None, probe_work=None):
+                     max_work=None, probe_work=None, predicted=None):
     """The simulated answer, or :class:`OverBudget` when ``max_work`` trial-steps (at most
     :data:`MAX_WORK`, the default) cannot meet the tolerances.
 
-    Every answer rests on at least :data:`FIRST_BATCH` trials. Without ``max_work`` the
-    first batch is always simulated; with it, its first :data:`PROBE_BATCH` trials predict
-    the work first, which must then be within ``probe_work`` too, when given (the budget of
-    a hand-over that nothing else predicted). ``make_result(probabilities, p_undecided,
-    rt_pmf, mean_rt, n_trials, err_p, err_rt)`` builds the result object; ``reason`` says
-    why the chain refused.
+    A first batch of :data:`FIRST_BATCH` plain trials answers where it meets the
+    tolerances. Without ``max_work`` it is always simulated; with it, its first
+    :data:`PROBE_BATCH` trials predict the work first, which must then be within
+    ``probe_work`` too, when given (the budget of a hand-over that nothing else predicted).
+    Where the first batch falls short by more plain trials than a batch with control
+    variates is worth (:func:`controlled_cost` times :data:`FIRST_BATCH`), those go on
+    (:func:`_controlled_answer`), or plain ones where they do not pay. Without ``max_work``,
+    ``predicted`` (the plain trials and steps per trial that the chain's last answer
+    predicts, :func:`predicted_trials`) may skip the plain first batch: where it predicts
+    more than :data:`CONTROLLED_AT_ONCE` times that worth, the controlled trials start at once.
+    ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
+    builds the result object; ``reason`` says why the chain refused.
     """
     budgeted = max_work is not None
     max_work = MAX_WORK if max_work is None else min(max_work, MAX_WORK)
     gen = as_generator("rng", DEFAULT_SEED if rng is None else rng)
-    n_opt = model.n_options
-    counts = np.zeros(n_opt, dtype=np.int64)
-    n_undecided = 0
-    sums = np.zeros(n_opt)
-    squares = np.zeros(n_opt)
-    hist = np.zeros((max_steps, n_opt))
-    work = 0.0
+    plain = _Tally(model.n_options, max_steps)
     batch = min(PROBE_BATCH, FIRST_BATCH) if budgeted else FIRST_BATCH
+    try_controls = True
+    if (predicted is not None and not budgeted and predicted[0] - FIRST_BATCH
+            > CONTROLLED_AT_ONCE * controlled_cost(predicted[1]) * FIRST_BATCH):
+        answer = _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason,
+                                    make_result, max_work, predicted[1], plain)
+        if answer is not None:
+            return answer
+        try_controls = False
+        batch = max(FIRST_BATCH - plain.n, 0)  # the controlled trials that did not pay count
     while True:
-        choices, all_steps = _fallback_trials(model, batch, theta, max_steps, gen)
-        chosen = choices >= 0
-        steps = all_steps[chosen]
-        opts = choices[chosen]
-        undecided = batch - int(chosen.sum())
-        counts += np.bincount(opts, minlength=n_opt)
-        n_undecided += undecided
-        sums += np.bincount(opts, weights=steps, minlength=n_opt)
-        squares += np.bincount(opts, weights=steps.astype(np.float64) ** 2, minlength=n_opt)
-        hist += np.bincount((steps - 1) * n_opt + opts,
-                            minlength=max_steps * n_opt).reshape(max_steps, n_opt)
-        work += float(steps.sum()) + float(undecided) * max_steps
-        n = int(counts.sum()) + n_undecided
-        err_p, err_rt = _errors(counts, n_undecided, sums, squares)
+        if batch:
+            plain.add(*_fallback_trials(model, batch, theta, max_steps, gen))
+        n = plain.n
+        err_p, err_rt = plain.errors()
         if n >= FIRST_BATCH and err_p <= atol and err_rt <= rt_rtol:
-            break
-        # trials needed: errors shrink as 1 / sqrt(n)
-        need = max(n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2) * 1.1, FIRST_BATCH)
-        per_trial = work / n
-        # the probe's prediction must be within probe_work as well
-        probing = n < FIRST_BATCH and probe_work is not None
-        if need * per_trial > (min(max_work, probe_work) if probing else max_work):
+            return plain.answer(make_result, err_p, err_rt)
+        need = max(_trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1, FIRST_BATCH)
+        per_trial = plain.work / n
+        if n < FIRST_BATCH:
+            # the probe's prediction must be within probe_work as well
+            probing = probe_work is not None
+            if need * per_trial > (min(max_work, probe_work) if probing else max_work):
+                raise over_budget(reason, need, per_trial)
+            batch = FIRST_BATCH - n  # the rest of the first batch
+            continue
+        # controls, unless fewer plain trials are left than a controlled batch is worth
+        if try_controls and need - n > controlled_cost(per_trial) * FIRST_BATCH:
+            try_controls = False
+            answer = _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason,
+                                        make_result, max_work - plain.work,
+                                        plain.sums.sum() / max(int(plain.counts.sum()), 1),
+                                        plain)
+            if answer is not None:
+                return answer
+            # plain trials go on, the controlled ones among them
+            n = plain.n
+            err_p, err_rt = plain.errors()
+            if err_p <= atol and err_rt <= rt_rtol:
+                return plain.answer(make_result, err_p, err_rt)
+            need = _trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1
+            per_trial = plain.work / n
+        if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
-        # after the probe, the rest of the first batch
-        batch = FIRST_BATCH - n if n < FIRST_BATCH else int(min(max(need - n, FIRST_BATCH),
-                                                                4 * n))
+        batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
+
+
+def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
+                       max_work, time_scale, plain):
+    """The answer from trials with control variates; :class:`OverBudget` when ``max_work``
+    trial-steps cannot meet the tolerances; None where the model has none
+    (:func:`mdft.simulate._controlled_trials`), where the budget has no room for their
+    first batch, or where they do not pay (their trials then join the tally ``plain``).
+
+    The first controlled batch has :data:`FIRST_BATCH` trials, like the plain one; the
+    controls measure time in units of ``time_scale`` steps (the plain trials' mean decision
+    step, or the one predicted). The answer rests on the controlled trials alone, with the
+    estimates and errors of :class:`mdft._control_variates.ControlledSums`. After each batch
+    the trials the controlled errors ask for, times :func:`controlled_cost`, are compared
+    with those the plain errors of the same trials ask for; where the controls do not pay,
+    the controlled trials join the plain ones.
+    """
+    tally = _Tally(model.n_options, max_steps)
+    sums = ControlledSums(model.n_options, N_CONTROLS)
+    batch = FIRST_BATCH
+    per_trial = plain.work / plain.n if plain.n else time_scale
+    if batch * per_trial > max_work:
+        return None
+    while True:
+        out = _controlled_trials(model, batch, theta, max_steps, gen, time_scale)
+        if out is None:
+            return None
+        choices, steps, grams = out
+        sums.add(grams)
+        tally.add(choices, steps)
+        n = tally.n
+        per_trial = tally.work / n
+        answer, err_p, err_rt = _controlled_estimates(sums, tally, max_steps, make_result)
+        if err_p <= atol and err_rt <= rt_rtol:
+            return answer
+        need = _trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1
+        plain_need = _trials_needed(n, *tally.errors(), atol, rt_rtol) * 1.1
+        if need * controlled_cost(per_trial) >= plain_need:
+            plain.merge(tally)
+            return None
+        if need * per_trial > max_work:
+            raise over_budget(reason, need, per_trial)
+        batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
+
+
+def _controlled_estimates(sums, tally, max_steps, make_result):
+    """``(answer, err_p, err_rt)`` from the control-variate estimates; the plain estimates
+    of the same trials where those are not all valid (a probability below 0, or 0 for an
+    option chosen, a mean time outside ``[1, max_steps]``)."""
+    n_opt = tally.counts.shape[0]
+    means, cov = sums.estimate()
+    probs = means[:n_opt]
+    p_undecided = means[n_opt]
+    times = means[n_opt + 1:]
+    n = tally.n
+    counts = tally.counts
+    err_p = 3.0 * float(np.sqrt(np.diag(cov)[:n_opt + 1] + 1.0 / n**2).max())
+    err_rt = 0.0
+    mean_rt = np.full(n_opt, np.nan)
+    valid = bool(np.all(probs >= 0.0) and p_undecided >= 0.0)
+    for i in range(n_opt):
+        if counts[i] == 0:
+            continue
+        if counts[i] < CONTROLLED_MIN_COUNT or not valid:
+            # too few choices to fit on: the plain mean and its error
+            mean_rt[i] = tally.sums[i] / counts[i]
+            err_rt = max(err_rt, _errors(counts[i:i + 1], n - counts[i], tally.sums[i:i + 1],
+                                         tally.squares[i:i + 1])[1])
+            continue
+        if not probs[i] > 0.0:
+            valid = False
+            continue
+        mean = times[i] / probs[i]
+        c = np.zeros(2 * n_opt + 1)
+        c[n_opt + 1 + i] = 1.0
+        c[i] = -mean
+        rel = 3.0 * math.sqrt(max(float(c @ cov @ c), 0.0)) / probs[i] / mean
+        valid = valid and 1.0 <= mean <= max_steps and math.isfinite(rel)
+        mean_rt[i] = mean
+        err_rt = max(err_rt, min(1.0, probs[i] / RT_WEIGHT_FLOOR) * rel)
+    if not valid:
+        err_p, err_rt = tally.errors()
+        return tally.answer(make_result, err_p, err_rt), err_p, err_rt
+    shares = counts / n
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean_rt = np.where(counts > 0, sums / np.where(counts > 0, counts, 1), np.nan)
-    return make_result(counts / n, n_undecided / n, hist / n, mean_rt, n, err_p, err_rt)
+        scale = np.where(counts > 0, probs / np.where(counts > 0, shares, 1.0), 0.0)
+    answer = make_result(probs, float(p_undecided), tally.hist / n * scale, mean_rt, n, err_p,
+                         err_rt)
+    return answer, err_p, err_rt

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _kernels
+from . import _control_kernels, _kernels
 from ._typing import ArrayLike, SeedLike
 from ._validation import (MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, MAX_THETA, as_count,
                           as_float_array, as_generator, as_scalar)
@@ -553,6 +553,69 @@ def _fallback_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: 
     _run_chunks(_kernels.reduced_chunks, _kernels.reduced_chunk, states, bounds, args,
                 choices, steps, n_samples * max_steps)
     return choices, steps
+
+
+def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
+                       generator: np.random.Generator, time_scale: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`_fallback_trials` with control variates (:mod:`mdft._control_kernels`):
+    ``(choices, steps, grams)``, ``grams`` (2, size, size) the two folds' sums of ``v v^T``
+    (:func:`mdft._control_kernels.gram_size`, made symmetric); None for the models
+    :func:`_fallback_trials` hands to :func:`simulate` (more than three options, or noise of
+    rank above two).
+
+    The position is measured from the fixed point of the mean path (the start where ``S``
+    has no such point) in units of ``theta``, and the step in units of ``time_scale``, so
+    that the sums are of order one.
+    """
+    n = model.n_options
+    S = np.ascontiguousarray(model.S, dtype=np.float64)
+    C = np.ascontiguousarray(model.C, dtype=np.float64)
+    L = _noise_factor(S, C, model.sigma2, 1)
+    if n > 3 or L.shape[1] > 2 or not np.isfinite(L).all():
+        return None
+    CM = np.ascontiguousarray(C @ model.M)
+    P0 = np.ascontiguousarray(model.P0, dtype=np.float64)
+    w = np.asarray(model.w, dtype=np.float64)
+    E = np.zeros((2, 3))
+    if n == 3:
+        E[0, :] = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
+        E[1, :] = np.array([1.0, 1.0, -2.0]) / math.sqrt(6.0)
+    else:
+        E[0, :2] = np.array([1.0, -1.0]) / math.sqrt(2.0)
+    try:
+        centre = np.linalg.solve(np.eye(n) - S, CM @ w)
+    except np.linalg.LinAlgError:
+        centre = P0
+    if not np.isfinite(centre).all():
+        centre = P0
+    J = CM.shape[1]
+    plane = np.zeros((2, 7 + J))
+    plane[:, :n] = E[:, :n]
+    plane[:, 3] = E[:, :n] @ centre
+    plane[0, 4] = 1.0 / theta
+    plane[1, 4] = 1.0 / max(time_scale, 1.0)
+    plane[:, 5:5 + L.shape[1]] = E[:, :n] @ L
+    plane[:, 7:] = E[:, :n] @ (CM - (CM @ w)[:, None])
+    states = _stream_states(generator, N_CHUNKS)
+    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_samples) // N_CHUNKS
+    choices = np.empty(n_samples, dtype=np.int64)
+    steps = np.empty(n_samples, dtype=np.int64)
+    size = _control_kernels.gram_size(n)
+    grams = np.zeros((N_CHUNKS, 2, size, size))
+    args = (S, CM, np.ascontiguousarray(L), _attention_cuts(model.w), P0, max_steps,
+            float(theta), plane)
+    with np.errstate(over="ignore"):
+        if n_samples * max_steps >= _PARALLEL_WORK:
+            _control_kernels.controlled_chunks(states, bounds, *args, choices, steps, grams)
+        else:
+            for c in _nonempty_chunks(bounds):
+                lo, hi = bounds[c], bounds[c + 1]
+                _control_kernels.controlled_chunk(states[c], lo, hi, *args, choices[lo:hi],
+                                                  steps[lo:hi], grams[c])
+    upper = grams.sum(axis=0)
+    lower = np.transpose(np.triu(upper, 1), (0, 2, 1))
+    return choices, steps, upper + lower
 
 
 # ---------------------------------------------------------------- decide

@@ -28,8 +28,8 @@ from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import (decision_bound, tolerance_level, undecided_answer,
                                within_tolerances)
-from ._threshold_fallback import (OverBudget, predicted_work, refuse_if_far_over_budget,
-                                  simulated_answer)
+from ._threshold_fallback import (OverBudget, predicted_trials, predicted_work,
+                                  refuse_if_far_over_budget, simulated_answer)
 from ._threads import fitted_to_the_load
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import MAX_STEPS, MAX_THETA, as_count, as_generator, as_scalar
@@ -434,12 +434,16 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     if fallback == "simulation" and method == "propagate":
         if runs:
             reason = f"within max_states={max_states}: {reason}"
+        predicted = None
         if fine is not None:
             # the chain's last answer tells about how much simulating would take: far over
             # the budget, say so now instead of after a first batch of trials
             refuse_if_far_over_budget(reason, max_steps, fine, atol, rt_rtol)
+            predicted = predicted_trials(max_steps, fine.probabilities, fine.p_undecided,
+                                         fine.rt_pmf, atol, rt_rtol)
         logger.info("threshold_probabilities: the chain refused (%s); simulating", reason)
-        return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason)
+        return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason,
+                          predicted=predicted)
     if not runs:
         raise ValueError(
             f"threshold_probabilities cannot vouch for this model: {reason}. With "
@@ -569,11 +573,11 @@ def _simulation_work(answer, max_steps, atol, rt_rtol):
 
 
 def _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason, max_work=None,
-               probe_work=None):
+               probe_work=None, predicted=None):
     """The simulation fallback's answer as a ThresholdProbabilities (``engine="simulation"``)."""
     return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
                             partial(_simulated_result, theta=theta, max_steps=max_steps),
-                            max_work=max_work, probe_work=probe_work)
+                            max_work=max_work, probe_work=probe_work, predicted=predicted)
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,

@@ -69,7 +69,8 @@ class WarmupReport:
 def _steps():
     """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
-    from .simulate import FixedTime, Threshold, _fallback_trials, decide, simulate
+    from .simulate import (FixedTime, Threshold, _controlled_trials, _fallback_trials, decide,
+                           simulate)
     from . import _plane_krylov, _threshold_bound
     from .threshold_exact import threshold_probabilities
 
@@ -96,7 +97,10 @@ def _steps():
             _plane_krylov.compile_kernels(), _threshold_bound.compile_kernels(),
             # the simulation fallback's trials, in the calling thread and in parallel
             _fallback_trials(m3, 64, 5.0, 50, np.random.default_rng(0)),
-            _fallback_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0)))),
+            _fallback_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0)),
+            # and its trials with control variates, the same two ways
+            _controlled_trials(m3, 64, 5.0, 50, np.random.default_rng(0), 10.0),
+            _controlled_trials(m3, 100, 3.0, 2_000, np.random.default_rng(0), 10.0))),
     ]
 
 

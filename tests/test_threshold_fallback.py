@@ -101,8 +101,11 @@ def test_simulates_from_the_start_where_the_first_pilot_predicts_it_costs_less(m
 
 
 def _counted_trials(monkeypatch):
+    """Record the size of every batch of trials; plain trials only (no control variates),
+    so that every answer rests on all the trials of its simulation."""
     from mdft import _threshold_fallback as fb
 
+    monkeypatch.setattr(fb, "_controlled_trials", lambda *args: None)
     trials = []
     run = fb._fallback_trials
 
@@ -262,9 +265,10 @@ def test_fallback_far_over_its_budget_refuses_without_simulating(monkeypatch):
         threshold_probabilities(model, 6.0, atol=0.004, rt_rtol=0.01)
 
 
-def test_predicted_simulation_work_matches_what_the_fallback_uses():
-    # the trials the fallback ends up simulating (three standard errors within the
-    # tolerances) are those predicted from the answer, within the growth of its batches
+def test_predicted_simulation_work_matches_what_the_fallback_uses(monkeypatch):
+    # the plain trials the fallback ends up simulating (three standard errors within the
+    # tolerances) are those predicted from the answer, within the growth of its batches;
+    # with control variates, the answer rests on fewer
     from mdft import _threshold_fallback as fb
 
     model = canonical(SETS["compromise"])
@@ -273,6 +277,12 @@ def test_predicted_simulation_work_matches_what_the_fallback_uses():
     for atol, rt_rtol in ((0.002, 0.01), (0.01, 0.002)):
         work = fb.predicted_work(exact.max_steps, exact.probabilities, exact.p_undecided,
                                  exact.rt_pmf, atol, rt_rtol)
-        sim = threshold_probabilities(model, 6.0, max_states=10, atol=atol, rt_rtol=rt_rtol)
         predicted = max(work / steps, fb.FIRST_BATCH)
+        controlled = threshold_probabilities(model, 6.0, max_states=10, atol=atol,
+                                             rt_rtol=rt_rtol)
+        assert controlled.n_iter < 0.5 * predicted, (predicted, controlled.n_iter)
+        with monkeypatch.context() as plain_only:
+            plain_only.setattr(fb, "_controlled_trials", lambda *args: None)
+            sim = threshold_probabilities(model, 6.0, max_states=10, atol=atol,
+                                          rt_rtol=rt_rtol)
         assert 0.8 * predicted <= sim.n_iter <= 1.6 * predicted, (predicted, sim.n_iter)

@@ -1,0 +1,237 @@
+"""Tests of the simulation fallback's control variates: the controlled trials
+(mdft/_control_kernels.py), the cross-fitted estimates (mdft/_control_variates.py) and their
+use by mdft.threshold_probabilities (docs/threshold_exact.md, section 9)."""
+
+import math
+import sys
+
+import numpy as np
+import pytest
+
+import mdft
+from mdft import _control_kernels, _threshold_fallback as fb
+from mdft._control_variates import ControlledSums
+from mdft.simulate import _controlled_trials, _fallback_trials
+from threshold_models import assert_within_stated_error, drawn, random_model
+
+K = _control_kernels.N_CONTROLS
+
+
+def _model_with_start(rng, n_options):
+    """A random model of the documented range, one to three attributes, ``P0`` off zero."""
+    n_attributes = int(rng.integers(1, 4))
+    model = drawn(rng.uniform(0.5, 4.0, (n_options, n_attributes)),
+                  rng.dirichlet(np.full(n_attributes, 4.0)),
+                  phi1=float(np.exp(rng.uniform(np.log(0.005), np.log(0.1)))),
+                  phi2=float(rng.uniform(0.01, 0.1)), beta=float(rng.uniform(1, 15)),
+                  sigma2=float(np.exp(rng.uniform(np.log(0.1), np.log(4.0)))),
+                  P0=rng.uniform(-2.0, 2.0, n_options))
+    return model, float(rng.uniform(3.0, 15.0))
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_controlled_trials_are_the_fallback_trials(n_options):
+    # the same draws and arithmetic: from the same generator, the same choices and steps
+    # to the bit, and sums that count them
+    rng = np.random.default_rng(11 + n_options)
+    for draw in range(4):
+        model, theta = _model_with_start(rng, n_options)
+        choices, steps = _fallback_trials(model, 4_000, theta, 300, np.random.default_rng(draw))
+        c2, s2, grams = _controlled_trials(model, 4_000, theta, 300,
+                                           np.random.default_rng(draw), 50.0)
+        np.testing.assert_array_equal(choices, c2)
+        np.testing.assert_array_equal(steps, s2)
+        total = grams.sum(axis=0)
+        np.testing.assert_array_equal(grams, np.transpose(grams, (0, 2, 1)))
+        assert total[0, 0] == 4_000 and abs(grams[0, 0, 0] - grams[1, 0, 0]) <= 1
+        y = 1 + K  # the targets: indicators, undecided, steps
+        counts = np.bincount(choices + 1, minlength=n_options + 1)
+        np.testing.assert_array_equal(np.diag(total)[y:y + n_options], counts[1:])
+        assert total[y + n_options, y + n_options] == counts[0]
+        for i in range(n_options):
+            mine = steps[choices == i].astype(float)
+            t = y + n_options + 1 + i
+            assert total[0, t] == mine.sum() and total[t, t] == (mine**2).sum()
+            assert total[y + i, t] == mine.sum()
+
+
+def test_controlled_trials_are_the_same_in_parallel_and_serially(monkeypatch):
+    module = sys.modules["mdft.simulate"]
+    model, theta = _model_with_start(np.random.default_rng(5), 3)
+    runs = []
+    for work in (0, 10**18):  # everything in parallel, then everything serial
+        monkeypatch.setattr(module, "_PARALLEL_WORK", work)
+        runs.append(_controlled_trials(model, 5_000, theta, 400, np.random.default_rng(2), 40.0))
+    for a, b in zip(*runs):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_control_sums_have_mean_zero(n_options):
+    # every control is a martingale stopped at a bounded time: on random models across the
+    # documented range (P0 off zero, one to three attributes, trials that end undecided at
+    # a short step limit too) each control's mean is within 4.5 standard errors of zero; a
+    # position that has seen the step's own noise fails this by 60 errors
+    rng = np.random.default_rng(70 + n_options)
+    worst = 0.0
+    for draw in range(6):
+        model, theta = _model_with_start(rng, n_options)
+        max_steps = 40 if draw % 2 else 2_000
+        _, steps, grams = _controlled_trials(model, 40_000, theta, max_steps,
+                                             np.random.default_rng(draw), 30.0)
+        total = grams.sum(axis=0)
+        n = total[0, 0]
+        mean = total[0, 1:1 + K] / n
+        var = np.diag(total)[1:1 + K] / n - mean**2
+        live = var > 1e-20 * max(var.max(), 1e-300)
+        z = np.abs(mean[live]) / np.sqrt(var[live] / n)
+        worst = max(worst, float(z.max()))
+    assert worst < 4.5, worst
+
+
+def _synthetic_grams(rng, n, beta, noise):
+    """Two folds' sums for one option always chosen at a step ``10 + beta^T x + noise``,
+    with controls ``x`` standard normal (mean zero, as the kernels' are)."""
+    size = _control_kernels.gram_size(1)
+    grams = np.zeros((2, size, size))
+    for fold in (0, 1):
+        m = n // 2
+        v = np.zeros((m, size))
+        v[:, 0] = 1.0
+        x = rng.standard_normal((m, K))
+        v[:, 1:1 + K] = x
+        v[:, 1 + K] = 1.0
+        v[:, 1 + K + 2] = 10.0 + x @ beta + noise * rng.standard_normal(m)
+        grams[fold] = v.T @ v
+    return grams
+
+
+def test_cross_fitted_estimates_are_unbiased_with_their_stated_spread():
+    # 400 replications of a mean with known controls: the estimates centre on the truth,
+    # their spread matches the stated standard error, and it is the residual noise's, not
+    # the controls'
+    rng = np.random.default_rng(3)
+    beta = rng.normal(0.0, 2.0, K)
+    estimates, stated = [], []
+    for _ in range(400):
+        sums = ControlledSums(1, K)
+        sums.add(_synthetic_grams(rng, 2_000, beta, 0.5))
+        means, cov = sums.estimate()
+        assert means[0] == pytest.approx(1.0) and means[1] == pytest.approx(0.0, abs=1e-12)
+        estimates.append(means[2])
+        stated.append(math.sqrt(cov[2, 2]))
+    estimates = np.array(estimates)
+    spread = estimates.std(ddof=1)
+    assert abs(estimates.mean() - 10.0) < 4 * spread / math.sqrt(estimates.size)
+    assert 0.85 < np.mean(stated) / spread < 1.15
+    plain = math.sqrt((beta @ beta + 0.25) / 2_000)
+    assert spread < 0.2 * plain
+
+
+def test_a_control_without_variance_is_left_out():
+    # controls that are zero (two options use one plane axis) or copies of others do not
+    # break the fit
+    rng = np.random.default_rng(4)
+    grams = _synthetic_grams(rng, 4_000, np.zeros(K), 1.0)
+    grams[:, 1:3, :] = 0.0  # two controls zero
+    grams[:, :, 1:3] = 0.0
+    grams[:, 3, :] = grams[:, 4, :]  # a copy of the next one
+    grams[:, :, 3] = grams[:, :, 4]
+    sums = ControlledSums(1, K)
+    sums.add(grams)
+    means, cov = sums.estimate()
+    assert np.isfinite(means).all() and np.isfinite(cov).all()
+    assert means[2] == pytest.approx(10.0, abs=0.1)
+
+
+def _count_calls(monkeypatch, name):
+    calls = []
+    run = getattr(fb, name)
+
+    def counted(model, n, *args):
+        calls.append(n)
+        return run(model, n, *args)
+
+    monkeypatch.setattr(fb, name, counted)
+    return calls
+
+
+def test_controlled_answers_agree_with_an_independent_simulation(monkeypatch):
+    # random three-option models across the documented range, the chain refused at once
+    # (max_states=10): where the first batch falls short, the controlled trials answer,
+    # within their stated error of 200,000 independent trials
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    rng = np.random.default_rng(2027)
+    answered = 0
+    for draw in range(5):
+        model, theta = random_model(rng, 3, theta_range=(5.0, 15.0))
+        controlled.clear()
+        res = mdft.threshold_probabilities(model, theta, max_states=10, atol=0.001,
+                                           rt_rtol=0.005)
+        assert res.engine == "simulation" and res.n_iter >= fb.FIRST_BATCH
+        assert res.error_probabilities <= 0.001 and res.error_mean_rt <= 0.005
+        assert res.probabilities.sum() + res.p_undecided == pytest.approx(1.0, abs=1e-9)
+        np.testing.assert_allclose(res.rt_pmf.sum(axis=0), res.probabilities, atol=1e-12)
+        assert_within_stated_error(res, model, theta, 200_000, 100 + draw)
+        answered += bool(controlled)
+    assert answered >= 2
+
+
+def test_controls_that_do_not_pay_leave_the_trials_to_the_plain_estimates(monkeypatch):
+    # a controlled batch that does not meet the tolerances, and whose controls save fewer
+    # trials than they cost, joins the plain trials; the answer is the plain one over all of
+    # them (counted as free when it is tried, as dear when it is judged)
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    costs = iter([0.0])
+    monkeypatch.setattr(fb, "controlled_cost", lambda steps: next(costs, 1e9))
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    res = mdft.threshold_probabilities(model, 6.0, max_states=10, atol=0.001, rt_rtol=0.01)
+    assert controlled == [fb.FIRST_BATCH] and res.error_probabilities <= 0.001
+    assert res.n_iter > 2 * fb.FIRST_BATCH
+    counts = res.probabilities * res.n_iter
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    assert_within_stated_error(res, model, 6.0, 200_000, 12)
+
+
+def test_invalid_controlled_estimates_give_the_plain_ones(monkeypatch):
+    # a controlled probability below zero (or a mean time out of range) is not returned:
+    # the same trials' plain estimates are
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    estimate = ControlledSums.estimate
+
+    def negative(self):
+        means, cov = estimate(self)
+        means = means.copy()
+        means[0] = -1e-6
+        return means, cov
+
+    monkeypatch.setattr(ControlledSums, "estimate", negative)
+    res = mdft.threshold_probabilities(model, 6.0, max_states=10, atol=0.004, rt_rtol=0.01)
+    counts = res.probabilities * res.n_iter
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    assert np.all(res.probabilities >= 0)
+
+
+def test_a_large_predicted_simulation_starts_with_its_controls(monkeypatch):
+    # where the refused chain's last answer predicts many plain trials, the controlled
+    # trials start at once (no plain first batch); a small prediction keeps the plain batch
+    from mdft import threshold_exact
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    plain = _count_calls(monkeypatch, "_fallback_trials")
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    at_once = (fb.FIRST_BATCH * (1 + 1.1 * fb.CONTROLLED_AT_ONCE * fb.controlled_cost(12.0)),
+               12.0)
+    res = threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
+                                     predicted=at_once)
+    assert plain == [] and controlled[0] == fb.FIRST_BATCH and res.n_iter == sum(controlled)
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    controlled.clear()
+    threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
+                               predicted=(0.5 * at_once[0], 12.0))
+    assert plain[0] == fb.FIRST_BATCH
