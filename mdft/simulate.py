@@ -564,9 +564,9 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     :func:`_fallback_trials` hands to :func:`simulate` (more than three options, or noise of
     rank above two).
 
-    The position is measured from the fixed point of the mean path (the start where ``S``
-    has no such point) in units of ``theta``, and the step in units of ``time_scale``, so
-    that the sums are of order one.
+    The position is measured from the fixed point of the mean path (from the start where
+    ``S`` has none within a hundred ``theta`` of zero) in units of ``theta``, and the step
+    in units of ``time_scale``, so that the sums are of order one.
     """
     n = model.n_options
     S = np.ascontiguousarray(model.S, dtype=np.float64)
@@ -587,7 +587,7 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
         centre = np.linalg.solve(np.eye(n) - S, CM @ w)
     except np.linalg.LinAlgError:
         centre = P0
-    if not np.isfinite(centre).all():
+    if not np.all(np.abs(centre) <= 100.0 * theta):  # no fixed point near the thresholds
         centre = P0
     J = CM.shape[1]
     plane = np.zeros((2, 7 + J))

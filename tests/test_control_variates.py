@@ -235,3 +235,27 @@ def test_a_large_predicted_simulation_starts_with_its_controls(monkeypatch):
     threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
                                predicted=(0.5 * at_once[0], 12.0))
     assert plain[0] == fb.FIRST_BATCH
+
+
+def test_controlled_answers_on_unusual_models(monkeypatch):
+    # models at the edges of what the controls assume: no noise (the attention alone moves
+    # the walk), one attribute (the noise alone), a start far off zero, a feedback matrix
+    # without a fixed point (S = I) and two options (one plane axis); batches of 20,000 so
+    # that every call goes on to controlled trials, each within its stated error of 200,000
+    # independent trials
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    monkeypatch.setattr(fb, "FIRST_BATCH", 20_000)
+    M3 = [[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]]
+    canon = dict(phi1=0.022, phi2=0.05, beta=12.0)
+    models = [drawn(M3, [0.5, 0.5], sigma2=0.0, **canon),
+              drawn([[1.0], [1.2], [0.9]], [1.0], **canon),
+              drawn(M3, [0.5, 0.5], P0=[4.0, -3.0, 1.5], **canon),
+              mdft.MDFTModel.from_matrices(M3, [0.5, 0.5], S=np.eye(3)),
+              drawn(M3[:2], [0.4, 0.6], **canon)]
+    for k, model in enumerate(models):
+        controlled.clear()
+        res = mdft.threshold_probabilities(model, 6.0, max_states=10, atol=0.002,
+                                           rt_rtol=0.008)
+        assert controlled and res.n_iter == sum(controlled), k
+        assert res.error_probabilities <= 0.002 and res.error_mean_rt <= 0.008
+        assert_within_stated_error(res, model, 6.0, 200_000, 30 + k)
