@@ -259,3 +259,23 @@ def test_controlled_answers_on_unusual_models(monkeypatch):
         assert controlled and res.n_iter == sum(controlled), k
         assert res.error_probabilities <= 0.002 and res.error_mean_rt <= 0.008
         assert_within_stated_error(res, model, 6.0, 200_000, 30 + k)
+
+
+def test_controls_answer_on_the_budget_of_an_early_hand_over(monkeypatch):
+    # on the budget of an early hand-over, the probe predicts plain trials: over the
+    # budget, the simulation stops there (the chain would go on) even if controlled trials
+    # might fit; within it, the controlled trials answer, on fewer trials than plain ones
+    from mdft import threshold_exact
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    with pytest.raises(fb.OverBudget):
+        threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
+                                   max_work=4e6)
+    plain = _count_calls(monkeypatch, "_fallback_trials")
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    res = threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
+                                     max_work=1e8)
+    assert plain == [fb.PROBE_BATCH, fb.FIRST_BATCH - fb.PROBE_BATCH]
+    assert controlled and res.n_iter == sum(controlled) < 1e6
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
