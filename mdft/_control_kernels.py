@@ -11,7 +11,7 @@ over its steps ``t = 1 .. T``, the products ``m(y(t-1), t) xi(t)``:
   the attention's deviation from its mean and the noise, centred, so that its expectation
   given everything before step ``t`` is zero;
 - ``m`` runs over :data:`N_MONOMIALS` monomials of the plane position before the step,
-  ``y = (E P(t-1) - centre) / scale``: those of degree at most 3, and ``t / time_scale``
+  ``y = E (P(t-1) - P(0)) / scale``: those of degree at most 3, and ``t / time_scale``
   times those of degree at most 2.
 
 Each ``m`` is known before step ``t`` is drawn, so every sum is a martingale stopped at
@@ -77,7 +77,7 @@ def controlled_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, P, acc):
     """:func:`mdft._kernels.reduced_trial`, writing the trial's control sums to ``acc``.
 
     ``plane`` (2, 7 + J) holds, row by row for the two plane axes: ``E`` (columns 0-2,
-    zero where there is no third option), the centre (column 3), ``1 / scale`` and
+    zero where there is no third option), the start's coordinates (column 3), ``1 / scale`` and
     ``1 / time_scale`` (column 4, rows 0 and 1), ``E L`` padded to two columns (columns
     5-6) and ``E C M (I - w 1^T)`` (columns 7 on, one per attribute).
     """

@@ -564,9 +564,10 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     :func:`_fallback_trials` hands to :func:`simulate` (more than three options, or noise of
     rank above two).
 
-    The position is measured from the fixed point of the mean path (from the start where
-    ``S`` has none within a hundred ``theta`` of zero) in units of ``theta``, and the step
-    in units of ``time_scale``, so that the sums are of order one.
+    The position is measured from the start in units of ``theta``, and the step in units of
+    ``time_scale``, so that the sums are of order one. (The monomials span the same functions
+    from any origin; an origin far from the walks, such as the mean path's fixed point where
+    ``S`` nearly keeps the preferences, only makes their fit ill-conditioned.)
     """
     n = model.n_options
     S = np.ascontiguousarray(model.S, dtype=np.float64)
@@ -583,16 +584,10 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
         E[1, :] = np.array([1.0, 1.0, -2.0]) / math.sqrt(6.0)
     else:
         E[0, :2] = np.array([1.0, -1.0]) / math.sqrt(2.0)
-    try:
-        centre = np.linalg.solve(np.eye(n) - S, CM @ w)
-    except np.linalg.LinAlgError:
-        centre = P0
-    if not np.all(np.abs(centre) <= 100.0 * theta):  # no fixed point near the thresholds
-        centre = P0
     J = CM.shape[1]
     plane = np.zeros((2, 7 + J))
     plane[:, :n] = E[:, :n]
-    plane[:, 3] = E[:, :n] @ centre
+    plane[:, 3] = E[:, :n] @ P0
     plane[0, 4] = 1.0 / theta
     plane[1, 4] = 1.0 / max(time_scale, 1.0)
     plane[:, 5:5 + L.shape[1]] = E[:, :n] @ L
