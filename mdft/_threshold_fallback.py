@@ -56,15 +56,20 @@ def _errors(counts, n_undecided, sums, squares):
     err_p = 3.0 * float(np.sqrt((shares * (1.0 - shares) + 1.0 / n) / n).max())
     err_rt = 0.0
     for i, c in enumerate(counts):
-        if c < 2:  # no spread to measure: as uncertain as the option's weight allows
-            if c > 0:
-                err_rt = max(err_rt, min(1.0, shares[i] / RT_WEIGHT_FLOOR))
-            continue
-        mean = sums[i] / c
-        var = max(squares[i] / c - mean * mean, 0.0) * c / (c - 1)
-        rel = 3.0 * math.sqrt(var / c) / mean
-        err_rt = max(err_rt, min(1.0, shares[i] / RT_WEIGHT_FLOOR) * rel)
+        err_rt = max(err_rt, _rt_error(c, shares[i], sums[i], squares[i]))
     return err_p, err_rt
+
+
+def _rt_error(count, share, total, square):
+    """Three standard errors of an option's mean time over it, weighted by
+    ``min(1, share / RT_WEIGHT_FLOOR)``, from its ``count`` choices, the ``total`` of their
+    steps and of their squares; 0 for an option never chosen."""
+    if count < 2:  # no spread to measure: as uncertain as the option's weight allows
+        return min(1.0, share / RT_WEIGHT_FLOOR) if count > 0 else 0.0
+    mean = total / count
+    var = max(square / count - mean * mean, 0.0) * count / (count - 1)
+    rel = 3.0 * math.sqrt(var / count) / mean
+    return min(1.0, share / RT_WEIGHT_FLOOR) * rel
 
 
 def predicted_trials(max_steps, probabilities, p_undecided, rt_pmf, atol, rt_rtol):
@@ -243,13 +248,8 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
                                         plain)
             if answer is not None:
                 return answer
-            # plain trials go on, the controlled ones among them
-            n = plain.n
-            err_p, err_rt = plain.errors()
-            if err_p <= atol and err_rt <= rt_rtol:
-                return plain.answer(make_result, err_p, err_rt)
-            need = _trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1
-            per_trial = plain.work / n
+            batch = 0  # plain trials go on, the controlled ones among them: judge them all
+            continue
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
         batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
@@ -319,8 +319,8 @@ def _controlled_estimates(sums, tally, max_steps, make_result):
         if counts[i] < CONTROLLED_MIN_COUNT or not valid:
             # too few choices to fit on: the plain mean and its error
             mean_rt[i] = tally.sums[i] / counts[i]
-            err_rt = max(err_rt, _errors(counts[i:i + 1], n - counts[i], tally.sums[i:i + 1],
-                                         tally.squares[i:i + 1])[1])
+            err_rt = max(err_rt, _rt_error(counts[i], counts[i] / n, tally.sums[i],
+                                           tally.squares[i]))
             continue
         if not probs[i] > 0.0:
             valid = False

@@ -507,18 +507,45 @@ def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshol
     )
 
 
-def _run_chunks(parallel, serial, states, bounds, args, choices, steps, work):
+def _run_chunks(parallel, serial, states, bounds, args, choices, steps, work, per_chunk=()):
     """Run the trials ``bounds[0] <= k < bounds[-1]`` chunk by chunk (chunk ``c`` on the
-    stream ``states[c]``), writing ``choices[k]`` and ``steps[k]``: in parallel where the
-    ``work`` (trials times steps) pays for waking the thread pool, else one chunk after
-    another in the calling thread; the same result either way."""
+    stream ``states[c]``), writing ``choices[k]`` and ``steps[k]`` (and into the arrays of
+    ``per_chunk`` at index ``c``): in parallel where the ``work`` (trials times steps) pays
+    for waking the thread pool, else one chunk after another in the calling thread; the same
+    result either way."""
     with np.errstate(over="ignore"):
         if work >= _PARALLEL_WORK:
-            parallel(states, bounds, *args, choices[bounds[0]:], steps[bounds[0]:])
+            parallel(states, bounds, *args, choices[bounds[0]:], steps[bounds[0]:],
+                     *per_chunk)
         else:
             for c in _nonempty_chunks(bounds):
                 lo, hi = bounds[c], bounds[c + 1]
-                serial(states[c], lo, hi, *args, choices[lo:hi], steps[lo:hi])
+                serial(states[c], lo, hi, *args, choices[lo:hi], steps[lo:hi],
+                       *(out[c] for out in per_chunk))
+
+
+def _reduced_args(model: MDFTModel, theta: float, max_steps: int):
+    """The arguments of the two- and three-option fallback kernels
+    (:func:`mdft._kernels.reduced_trial`): ``(S, CM, L, cuts, P0, max_steps, theta)``, or
+    None where the model needs :func:`simulate`'s kernels (more than three options, or noise
+    of rank above two)."""
+    S = np.ascontiguousarray(model.S, dtype=np.float64)
+    C = np.ascontiguousarray(model.C, dtype=np.float64)
+    L = _noise_factor(S, C, model.sigma2, 1)
+    if model.n_options > 3 or L.shape[1] > 2 or not np.isfinite(L).all():
+        return None
+    return (S, np.ascontiguousarray(C @ model.M), np.ascontiguousarray(L),
+            _attention_cuts(model.w), np.ascontiguousarray(model.P0, dtype=np.float64),
+            max_steps, float(theta))
+
+
+def _chunk_layout(generator: np.random.Generator, n_samples: int):
+    """The streams and chunk bounds of ``n_samples`` trials, and their empty choices and
+    steps: ``(states, bounds, choices, steps)``."""
+    states = _stream_states(generator, N_CHUNKS)
+    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_samples) // N_CHUNKS
+    return (states, bounds, np.empty(n_samples, dtype=np.int64),
+            np.empty(n_samples, dtype=np.int64))
 
 
 def _fallback_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
@@ -534,22 +561,13 @@ def _fallback_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: 
     the same :data:`N_CHUNKS` streams, so a generator in the same state gives the same
     trials on any number of threads.
     """
-    n = model.n_options
-    S = np.ascontiguousarray(model.S, dtype=np.float64)
-    C = np.ascontiguousarray(model.C, dtype=np.float64)
-    L = _noise_factor(S, C, model.sigma2, 1)
-    if n > 3 or L.shape[1] > 2 or not np.isfinite(L).all():
+    args = _reduced_args(model, theta, max_steps)
+    if args is None:
         res = simulate(model, n_samples, stopping=Threshold(theta, max_steps=max_steps),
                        rng=generator)
         assert res.choices is not None and res.decision_steps is not None  # threshold stopping
         return res.choices, res.decision_steps
-    states = _stream_states(generator, N_CHUNKS)
-    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_samples) // N_CHUNKS
-    choices = np.empty(n_samples, dtype=np.int64)
-    steps = np.empty(n_samples, dtype=np.int64)
-    args = (S, np.ascontiguousarray(C @ model.M), np.ascontiguousarray(L),
-            _attention_cuts(model.w), np.ascontiguousarray(model.P0, dtype=np.float64),
-            max_steps, float(theta))
+    states, bounds, choices, steps = _chunk_layout(generator, n_samples)
     _run_chunks(_kernels.reduced_chunks, _kernels.reduced_chunk, states, bounds, args,
                 choices, steps, n_samples * max_steps)
     return choices, steps
@@ -569,14 +587,11 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     from any origin; an origin far from the walks, such as the mean path's fixed point where
     ``S`` nearly keeps the preferences, only makes their fit ill-conditioned.)
     """
-    n = model.n_options
-    S = np.ascontiguousarray(model.S, dtype=np.float64)
-    C = np.ascontiguousarray(model.C, dtype=np.float64)
-    L = _noise_factor(S, C, model.sigma2, 1)
-    if n > 3 or L.shape[1] > 2 or not np.isfinite(L).all():
+    args = _reduced_args(model, theta, max_steps)
+    if args is None:
         return None
-    CM = np.ascontiguousarray(C @ model.M)
-    P0 = np.ascontiguousarray(model.P0, dtype=np.float64)
+    _, CM, L, _, P0, _, _ = args
+    n = model.n_options
     w = np.asarray(model.w, dtype=np.float64)
     E = np.zeros((2, 3))
     if n == 3:
@@ -584,30 +599,18 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
         E[1, :] = np.array([1.0, 1.0, -2.0]) / math.sqrt(6.0)
     else:
         E[0, :2] = np.array([1.0, -1.0]) / math.sqrt(2.0)
-    J = CM.shape[1]
-    plane = np.zeros((2, 7 + J))
+    plane = np.zeros((2, 7 + CM.shape[1]))
     plane[:, :n] = E[:, :n]
     plane[:, 3] = E[:, :n] @ P0
     plane[0, 4] = 1.0 / theta
     plane[1, 4] = 1.0 / max(time_scale, 1.0)
     plane[:, 5:5 + L.shape[1]] = E[:, :n] @ L
     plane[:, 7:] = E[:, :n] @ (CM - (CM @ w)[:, None])
-    states = _stream_states(generator, N_CHUNKS)
-    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n_samples) // N_CHUNKS
-    choices = np.empty(n_samples, dtype=np.int64)
-    steps = np.empty(n_samples, dtype=np.int64)
+    states, bounds, choices, steps = _chunk_layout(generator, n_samples)
     size = _control_kernels.gram_size(n)
     grams = np.zeros((N_CHUNKS, 2, size, size))
-    args = (S, CM, np.ascontiguousarray(L), _attention_cuts(model.w), P0, max_steps,
-            float(theta), plane)
-    with np.errstate(over="ignore"):
-        if n_samples * max_steps >= _PARALLEL_WORK:
-            _control_kernels.controlled_chunks(states, bounds, *args, choices, steps, grams)
-        else:
-            for c in _nonempty_chunks(bounds):
-                lo, hi = bounds[c], bounds[c + 1]
-                _control_kernels.controlled_chunk(states[c], lo, hi, *args, choices[lo:hi],
-                                                  steps[lo:hi], grams[c])
+    _run_chunks(_control_kernels.controlled_chunks, _control_kernels.controlled_chunk, states,
+                bounds, (*args, plane), choices, steps, n_samples * max_steps, (grams,))
     upper = grams.sum(axis=0)
     lower = np.transpose(np.triu(upper, 1), (0, 2, 1))
     return choices, steps, upper + lower
