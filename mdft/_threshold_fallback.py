@@ -40,6 +40,12 @@ CONTROLLED_TRIAL_COST = 18.0
 #: Where the chain's last answer predicts more than this many times the plain trials that a
 #: controlled batch is worth beyond the first batch, the controlled trials start at once.
 CONTROLLED_AT_ONCE = 2.0
+#: On a budget with ``probe_controls``, where the plain probe predicts more than the budget
+#: but at most CONTROLLED_REACH times it, CONTROLLED_PROBE trials with control variates
+#: predict their own work, provided they cost at most CONTROLLED_PROBE_SHARE of the budget.
+CONTROLLED_PROBE = 10_000
+CONTROLLED_REACH = 20.0
+CONTROLLED_PROBE_SHARE = 0.15
 #: Options chosen fewer times than this have the plain mean time of the controlled trials.
 CONTROLLED_MIN_COUNT = 100
 #: Options chosen less often than this weigh in on the mean-time error with p / this.
@@ -191,8 +197,14 @@ def _trials_needed(n, err_p, err_rt, atol, rt_rtol):
     return n * max((err_p / atol) ** 2, (err_rt / rt_rtol) ** 2)
 
 
+def controlled_probe_work(per_trial):
+    """Trial-steps, in plain ones, of the :data:`CONTROLLED_PROBE` controlled trials that
+    test whether control variates bring a simulation within its budget."""
+    return CONTROLLED_PROBE * per_trial * controlled_cost(per_trial)
+
+
 def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_result,
-                     max_work=None, probe_work=None, predicted=None):
+                     max_work=None, probe_work=None, predicted=None, probe_controls=False):
     """The simulated answer, or :class:`OverBudget` when ``max_work`` trial-steps (at most
     :data:`MAX_WORK`, the default) cannot meet the tolerances.
 
@@ -206,6 +218,11 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     ``predicted`` (the plain trials and steps per trial that the chain's last answer
     predicts, :func:`predicted_trials`) may skip the plain first batch: where it predicts
     more than :data:`CONTROLLED_AT_ONCE` times that worth, the controlled trials start at once.
+    With ``probe_controls`` (and a budget), a probe whose plain trials predict more than the
+    budget, but at most :data:`CONTROLLED_REACH` times it, goes on to
+    :data:`CONTROLLED_PROBE` controlled trials where those cost at most
+    :data:`CONTROLLED_PROBE_SHARE` of the budget: their own prediction, at their cost per
+    trial, then decides whether the simulation goes on, with them.
     ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
     builds the result object; ``reason`` says why the chain refused.
     """
@@ -235,7 +252,17 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
         if n < FIRST_BATCH:
             # the probe's prediction must be within probe_work as well
             probing = probe_work is not None
-            if need * per_trial > (min(max_work, probe_work) if probing else max_work):
+            limit = min(max_work, probe_work) if probing else max_work
+            if need * per_trial > limit:
+                if (probe_controls and need * per_trial <= CONTROLLED_REACH * limit
+                        and controlled_probe_work(per_trial)
+                        <= CONTROLLED_PROBE_SHARE * limit):
+                    answer = _controlled_answer(
+                        model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
+                        max_work - plain.work, plain.sums.sum() / max(int(plain.counts.sum()), 1),
+                        plain, probe_work=limit - plain.work)
+                    if answer is not None:
+                        return answer
                 raise over_budget(reason, need, per_trial)
             batch = FIRST_BATCH - n  # the rest of the first batch
             continue
@@ -256,7 +283,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
 
 
 def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
-                       max_work, time_scale, plain):
+                       max_work, time_scale, plain, probe_work=None):
     """The answer from trials with control variates; :class:`OverBudget` when ``max_work``
     trial-steps cannot meet the tolerances; None where the model has none
     (:func:`mdft.simulate._controlled_trials`), where the budget has no room for their
@@ -269,10 +296,15 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
     the trials the controlled errors ask for, times :func:`controlled_cost`, are compared
     with those the plain errors of the same trials ask for; where the controls do not pay,
     the controlled trials join the plain ones.
+
+    With ``probe_work``, the first batch is a probe of :data:`CONTROLLED_PROBE` trials, and
+    :class:`OverBudget` is raised after it where the trials its errors ask for, at their cost
+    (:func:`controlled_cost`), would take more than ``probe_work`` plain trial-steps; every
+    answer still rests on at least :data:`FIRST_BATCH` controlled trials.
     """
     tally = _Tally(model.n_options, max_steps)
     sums = ControlledSums(model.n_options, N_CONTROLS)
-    batch = FIRST_BATCH
+    batch = FIRST_BATCH if probe_work is None else CONTROLLED_PROBE
     per_trial = plain.work / plain.n if plain.n else time_scale
     if batch * per_trial > max_work:
         return None
@@ -286,16 +318,20 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
         n = tally.n
         per_trial = tally.work / n
         answer, err_p, err_rt = _controlled_estimates(sums, tally, max_steps, make_result)
-        if err_p <= atol and err_rt <= rt_rtol:
+        if n >= FIRST_BATCH and err_p <= atol and err_rt <= rt_rtol:
             return answer
-        need = _trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1
+        need = max(_trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1, FIRST_BATCH)
         plain_need = _trials_needed(n, *tally.errors(), atol, rt_rtol) * 1.1
         if need * controlled_cost(per_trial) >= plain_need:
             plain.merge(tally)
             return None
+        if probe_work is not None and n < FIRST_BATCH:
+            if need * per_trial * controlled_cost(per_trial) > probe_work:
+                raise over_budget(reason, need, per_trial, " with control variates")
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
-        batch = int(min(max(need - n, FIRST_BATCH), 4 * n))
+        # (after a probe, at least the rest of a first batch)
+        batch = int(max(min(max(need - n, FIRST_BATCH), 4 * n), FIRST_BATCH - n))
 
 
 def _controlled_estimates(sums, tally, max_steps, make_result):

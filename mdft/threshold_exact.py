@@ -28,8 +28,10 @@ from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import (decision_bound, tolerance_level, undecided_answer,
                                within_tolerances)
-from ._threshold_fallback import (OverBudget, predicted_trials, predicted_work,
-                                  refuse_if_far_over_budget, simulated_answer)
+from ._threshold_fallback import (CONTROLLED_PROBE_SHARE, CONTROLLED_REACH, PROBE_BATCH,
+                                  OverBudget, controlled_probe_work, predicted_trials,
+                                  predicted_work, refuse_if_far_over_budget, simulated_answer,
+                                  steps_per_walk)
 from ._threads import fitted_to_the_load
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import MAX_STEPS, MAX_THETA, as_count, as_generator, as_scalar
@@ -82,6 +84,13 @@ _SIM_STEP_WORK = 10.0
 # trials then need more than _SIM_OVERRUN times the passes' work, the chain goes on instead.
 _EARLY_SHARE = 0.6
 _SIM_OVERRUN = 2.0
+# Where plain trials are predicted to cost more than the chain, but by at most
+# CONTROLLED_REACH times, a probe of plain and controlled trials (costing at most
+# CONTROLLED_PROBE_SHARE of the chain's work) measures what control variates save; once per
+# call, and only where the chain's work is at least _PROBE_MIN_WORK (about a second on an
+# idle 2-core machine; on shorter calls the probes that find no saving cost more than the
+# rare ones that do save; _controls_may_pay).
+_PROBE_MIN_WORK = 1e9
 
 
 def _three_options(model=None, *args, **kwargs):
@@ -307,6 +316,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     solve = dict(method=method, max_steps=max_steps, tol=tol, tail_tol=tail_tol,
                  max_iter=max_iter)
     closure = dict(error=(0.0, 0.0), settled=True)
+    probed = []  # the probe of controlled trials, once run (_controls_may_pay)
     reason = _no_chain(model, theta, resolution)
     if reason:
         runs = []  # no chain holds the states, or no pass can be trusted: refuse (or simulate)
@@ -316,7 +326,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         cheaper = None
         if fallback == "simulation" and method == "propagate":
             cheaper = partial(_simulated_if_cheaper, model=model, theta=theta,
-                              max_steps=max_steps, atol=atol, rt_rtol=rt_rtol, rng=rng)
+                              max_steps=max_steps, atol=atol, rt_rtol=rt_rtol, rng=rng,
+                              probed=probed)
         runs = plane_runs(model, theta, resolution or KAPPA, max_states, solve, closure,
                            (atol, rt_rtol), cheaper)
     coarse = fine = None
@@ -404,12 +415,23 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             ratio = HALF_STEP if half or try_half else REFINE
             chain_work = ratio**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
             sim_work = _simulation_work(fine, max_steps, atol, rt_rtol)
+            found = (f"estimated error {err_p + spread_p:.2g} in the probabilities and "
+                     f"{err_rt + spread_rt:.2g} relative in the mean response times at "
+                     f"{fine.n_states} states, where ")
             if sim_work < chain_work:
-                reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities and "
-                          f"{err_rt + spread_rt:.2g} relative in the mean response times at "
-                          f"{fine.n_states} states, where simulating costs less than a "
-                          "finer grid")
+                reason = found + "simulating costs less than a finer grid"
                 break
+            if _controls_may_pay(fine, sim_work, chain_work, max_steps, probed):
+                why = found + "trials with control variates may cost less than a finer grid"
+                logger.info("threshold_probabilities: %s; probing them", why)
+                try:
+                    return _simulated(model, theta, max_steps, atol, rt_rtol, rng, why,
+                                      max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK,
+                                      probe_work=chain_work / _SIM_STEP_WORK,
+                                      probe_controls=True)
+                except OverBudget:
+                    logger.info("threshold_probabilities: the probe says they cost more; "
+                                "refining")
         if narrow:
             reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
                       f"sqrt(3) at {fine.n_states} states, where the estimate itself is not "
@@ -532,8 +554,24 @@ def _out_of_reach(grid_errors, spread, tolerances, left):
     return ""
 
 
+def _controls_may_pay(answer, sim_work, chain_work, max_steps, probed):
+    """Whether to probe trials with control variates (once per call, recorded in ``probed``)
+    where plain ones, predicted from ``answer`` to take ``sim_work``, cost more than
+    ``chain_work``: where that is at least ``_PROBE_MIN_WORK``, they cost at most
+    ``CONTROLLED_REACH`` times it, and the probe (``PROBE_BATCH`` plain trials and
+    ``controlled_probe_work``) at most ``CONTROLLED_PROBE_SHARE`` of it."""
+    if probed or chain_work < _PROBE_MIN_WORK or not sim_work < CONTROLLED_REACH * chain_work:
+        return False
+    per_trial = steps_per_walk(answer.rt_pmf, answer.p_undecided, max_steps)
+    probe = _SIM_STEP_WORK * (PROBE_BATCH * per_trial + controlled_probe_work(per_trial))
+    if not probe <= CONTROLLED_PROBE_SHARE * chain_work:
+        return False
+    probed.append(True)
+    return True
+
+
 def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, atol, rt_rtol,
-                          rng):
+                          rng, probed=None):
     """The simulated answer where simulating to the tolerances is predicted to cost less than
     ``_EARLY_SHARE`` of building and running ``nonzeros`` for ``steps`` steps (the chain's
     passes ahead, at the least); None where it is not, or where the trials turn out to need
@@ -541,7 +579,10 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
 
     The prediction comes from ``answer``, the first pilot's, or, where that pilot was cut
     (``answer`` None: its closure ran away, and its answer predicts nothing), from the
-    first trials of the simulation itself."""
+    first trials of the simulation itself. Where plain trials cost more than that share,
+    trials with control variates may still cost less: ``_controls_may_pay`` decides whether a
+    probe of them (``probed``: whether one has run in the call) measures it.
+    """
     chain_work = nonzeros * (_BUILD_WORK + steps)
     probe_work = None
     if answer is None:
@@ -550,15 +591,21 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
                   f"{chain_work:.3g} units of work at the least")
     else:
         sim_work = _simulation_work(answer, max_steps, atol, rt_rtol)
-        if not sim_work < _EARLY_SHARE * chain_work:
-            return None
         reason = (f"the first pilot pass predicts {sim_work:.3g} units of work for simulating "
                   f"to the tolerances, against {chain_work:.3g} for the chain's next passes")
+        if not sim_work < _EARLY_SHARE * chain_work:
+            if probed is None or not _controls_may_pay(answer, sim_work,
+                                                       _EARLY_SHARE * chain_work, max_steps,
+                                                       probed):
+                return None
+            probe_work = _EARLY_SHARE * chain_work / _SIM_STEP_WORK
+            reason += ", where trials with control variates may cost less"
     logger.info("threshold_probabilities: %s; simulating", reason)
     try:
         return _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason,
                           max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK,
-                          probe_work=probe_work)
+                          probe_work=probe_work,
+                          probe_controls=_EARLY_SHARE * chain_work >= _PROBE_MIN_WORK)
     except OverBudget:
         logger.info("threshold_probabilities: the trials need more than predicted; "
                     "building the chain")
@@ -573,11 +620,12 @@ def _simulation_work(answer, max_steps, atol, rt_rtol):
 
 
 def _simulated(model, theta, max_steps, atol, rt_rtol, rng, reason, max_work=None,
-               probe_work=None, predicted=None):
+               probe_work=None, predicted=None, probe_controls=False):
     """The simulation fallback's answer as a ThresholdProbabilities (``engine="simulation"``)."""
     return simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason,
                             partial(_simulated_result, theta=theta, max_steps=max_steps),
-                            max_work=max_work, probe_work=probe_work, predicted=predicted)
+                            max_work=max_work, probe_work=probe_work, predicted=predicted,
+                            probe_controls=probe_controls)
 
 
 def _simulated_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt,

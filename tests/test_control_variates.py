@@ -279,3 +279,137 @@ def test_controls_answer_on_the_budget_of_an_early_hand_over(monkeypatch):
     assert plain == [fb.PROBE_BATCH, fb.FIRST_BATCH - fb.PROBE_BATCH]
     assert controlled and res.n_iter == sum(controlled) < 1e6
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+
+
+def _probe_kw(model, probe_work):
+    # the early hand-over's budget: probe_work, and twice it in all; the result as a tuple
+    return dict(model=model, theta=6.0, max_steps=10_000, atol=1e-3, rt_rtol=3e-3, rng=None,
+                reason="a test", make_result=lambda *args: args, max_work=2.0 * probe_work,
+                probe_work=probe_work, probe_controls=True)
+
+
+def test_a_probe_of_controlled_trials_decides_a_budgeted_simulation(monkeypatch):
+    # the compromise set at theta = 6: plain trials need about 2.9e7 trial-steps, controlled
+    # ones about 1.7e7 at their cost. On a budget between the two, the plain probe is over
+    # it and a probe of controlled trials goes on to answer; below both, that probe stops
+    # the simulation; beyond CONTROLLED_REACH times the budget, or where the controlled
+    # probe would cost more than CONTROLLED_PROBE_SHARE of it, no controlled trial is run
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    plain = _count_calls(monkeypatch, "_fallback_trials")
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    out = fb.simulated_answer(**_probe_kw(model, 2.4e7))
+    assert plain == [fb.PROBE_BATCH]
+    assert controlled[:2] == [fb.CONTROLLED_PROBE, fb.FIRST_BATCH - fb.CONTROLLED_PROBE]
+    assert out[4] == sum(controlled) >= fb.FIRST_BATCH and out[5] <= 1e-3 and out[6] <= 3e-3
+    # what the controlled probe measured: controlled trials at their cost within the
+    # budget, plain ones not
+    for budget, ran in ((1e7, [fb.CONTROLLED_PROBE]), (1e6, []), (2e6, [])):
+        plain.clear()
+        controlled.clear()
+        with pytest.raises(fb.OverBudget, match="would need about"):
+            fb.simulated_answer(**_probe_kw(model, budget))
+        assert plain == [fb.PROBE_BATCH] and controlled == ran, budget
+    # 2e6 was within reach (20 times) but the probe's 4.4e5 trial-steps above its share;
+    # a larger share lets it run
+    monkeypatch.setattr(fb, "CONTROLLED_PROBE_SHARE", 0.5)
+    controlled.clear()
+    with pytest.raises(fb.OverBudget, match="with control variates"):
+        fb.simulated_answer(**_probe_kw(model, 2e6))
+    assert controlled == [fb.CONTROLLED_PROBE]
+    # without probe_controls, the plain probe's prediction decides alone, as before
+    controlled.clear()
+    with pytest.raises(fb.OverBudget):
+        fb.simulated_answer(**{**_probe_kw(model, 2.4e7), "probe_controls": False})
+    assert controlled == []
+
+
+def test_the_early_hand_over_probes_controls_where_plain_trials_cost_too_much(monkeypatch):
+    # the first pilot predicts plain trials beyond the share of the chain's passes ahead,
+    # but within reach of the controls: the call probes them and answers by them, within its
+    # stated error of independent trials; the probe runs once per call
+    from mdft import threshold_exact
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    monkeypatch.setattr(threshold_exact, "_PROBE_MIN_WORK", 0.0)  # a quick model
+    answer = mdft.threshold_probabilities(model, 6.0, fallback="raise")
+    sim_work = threshold_exact._simulation_work(answer, 10_000, 1e-3, 3e-3)
+    steps = 20
+    # passes ahead whose share the plain trials exceed by a fifth
+    nonzeros = sim_work / 1.2 / threshold_exact._EARLY_SHARE / (threshold_exact._BUILD_WORK
+                                                                  + steps)
+    controlled = _count_calls(monkeypatch, "_controlled_trials")
+    kw = dict(model=model, theta=6.0, max_steps=10_000, atol=1e-3, rt_rtol=3e-3, rng=None)
+    probed = []
+    res = threshold_exact._simulated_if_cheaper(answer, nonzeros, steps, **kw, probed=probed)
+    assert res.engine == "simulation" and probed == [True]
+    assert controlled[0] == fb.CONTROLLED_PROBE and res.n_iter == sum(controlled)
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    assert_within_stated_error(res, model, 6.0, 200_000, 41)
+    # once per call; and without a record of probes (the count alone) none is run
+    controlled.clear()
+    assert threshold_exact._simulated_if_cheaper(answer, nonzeros, steps, **kw,
+                                                 probed=probed) is None
+    assert threshold_exact._simulated_if_cheaper(answer, nonzeros, steps, **kw) is None
+    assert controlled == []
+
+
+def test_whether_controls_may_pay_is_a_count(monkeypatch):
+    # a probe where the chain's work is at least _PROBE_MIN_WORK, plain trials cost at most
+    # CONTROLLED_REACH times it, and the probe (PROBE_BATCH plain and CONTROLLED_PROBE
+    # controlled trials of 1,000 steps) at most CONTROLLED_PROBE_SHARE of it
+    from types import SimpleNamespace
+
+    from mdft import threshold_exact
+
+    rt_pmf = np.zeros((2_000, 3))
+    rt_pmf[999] = [0.5, 0.5, 0.0]
+    answer = SimpleNamespace(probabilities=rt_pmf.sum(axis=0), p_undecided=0.0, rt_pmf=rt_pmf)
+    probe = threshold_exact._SIM_STEP_WORK * (fb.PROBE_BATCH * 1_000
+                                              + fb.controlled_probe_work(1_000.0))
+    chain = probe / fb.CONTROLLED_PROBE_SHARE
+    assert chain >= threshold_exact._PROBE_MIN_WORK
+    may = threshold_exact._controls_may_pay
+    assert not may(answer, 1.01 * fb.CONTROLLED_REACH * chain, chain, 10_000, [])
+    assert not may(answer, chain, 0.99 * chain, 10_000, [])
+    assert not may(answer, math.nan, chain, 10_000, [])
+    probed = []
+    assert may(answer, 0.99 * fb.CONTROLLED_REACH * chain, chain, 10_000, probed)
+    assert probed == [True] and not may(answer, chain, chain, 10_000, probed)
+    # below the least work worth a probe, none
+    monkeypatch.setattr(threshold_exact, "_PROBE_MIN_WORK", 1.01 * chain)
+    assert not may(answer, chain, chain, 10_000, [])
+
+
+def test_a_pass_that_finds_controls_may_pay_probes_them_on_its_budget(monkeypatch):
+    # after a comparison, where plain trials cost more than the next pass but controls may
+    # pay, the call simulates on the next pass's budget, probing the controls; over that
+    # budget the chain refines as before
+    from mdft import threshold_exact
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    monkeypatch.setattr(threshold_exact, "_simulated_if_cheaper", lambda *a, **k: None)
+    monkeypatch.setattr(threshold_exact, "_FIRST_PAIR_FACTOR", 1e6)  # always refine
+    monkeypatch.setattr(threshold_exact, "_SIM_STEP_WORK", 1e12)  # plain trials dear
+    asked = []
+    monkeypatch.setattr(threshold_exact, "_controls_may_pay",
+                        lambda answer, sim, chain, steps, probed: asked.append(chain) or True)
+    calls = []
+
+    def simulated(*args, **kwargs):
+        calls.append(kwargs)
+        raise fb.OverBudget("over")
+
+    monkeypatch.setattr(threshold_exact, "_simulated", simulated)
+    loose = dict(atol=0.004, rt_rtol=0.01)
+    res = mdft.threshold_probabilities(model, 6.0, **loose)
+    assert res.engine == "plane" and calls and len(calls) == len(asked)
+    for chain, kwargs in zip(asked, calls):
+        assert kwargs["probe_controls"]
+        assert kwargs["probe_work"] == pytest.approx(chain / 1e12)
+        assert kwargs["max_work"] == pytest.approx(threshold_exact._SIM_OVERRUN * chain / 1e12)
+    monkeypatch.setattr(threshold_exact, "_simulated", lambda *a, **k: "simulated")
+    assert mdft.threshold_probabilities(model, 6.0, **loose) == "simulated"
