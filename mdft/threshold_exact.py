@@ -87,9 +87,10 @@ _SIM_OVERRUN = 2.0
 # Where plain trials are predicted to cost more than the chain, but by at most
 # CONTROLLED_REACH times, a probe of plain and controlled trials (costing at most
 # CONTROLLED_PROBE_SHARE of the chain's work) measures what control variates save; once per
-# call, and only where the chain's work is at least _PROBE_MIN_WORK (about a second on an
-# idle 2-core machine; on shorter calls the probes that find no saving cost more than the
-# rare ones that do save; _controls_may_pay).
+# call (_controls_may_pay), and only where the chain's work is at least _PROBE_MIN_WORK
+# (about a second on an idle 2-core machine; on shorter calls the probes that find no saving
+# cost more than the rare ones that do save). The early hand-over's simulations on a budget
+# of at least that may also go on to controlled trials where their plain probe is over it.
 _PROBE_MIN_WORK = 1e9
 
 
