@@ -222,7 +222,8 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     budget, but at most :data:`CONTROLLED_REACH` times it, goes on to
     :data:`CONTROLLED_PROBE` controlled trials where those cost at most
     :data:`CONTROLLED_PROBE_SHARE` of the budget: their own prediction, at their cost per
-    trial, then decides whether the simulation goes on, with them.
+    trial, then decides whether the simulation goes on, with them (where they do not pay,
+    they join the plain trials, which are judged again).
     ``make_result(probabilities, p_undecided, rt_pmf, mean_rt, n_trials, err_p, err_rt)``
     builds the result object; ``reason`` says why the chain refused.
     """
@@ -254,15 +255,19 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
             probing = probe_work is not None
             limit = min(max_work, probe_work) if probing else max_work
             if need * per_trial > limit:
-                if (probe_controls and need * per_trial <= CONTROLLED_REACH * limit
+                if (probe_controls and try_controls
+                        and need * per_trial <= CONTROLLED_REACH * limit
                         and controlled_probe_work(per_trial)
                         <= CONTROLLED_PROBE_SHARE * limit):
+                    try_controls = False
                     answer = _controlled_answer(
                         model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
                         max_work - plain.work, plain.sums.sum() / max(int(plain.counts.sum()), 1),
                         plain, probe_work=limit - plain.work)
                     if answer is not None:
                         return answer
+                    batch = 0  # controls that do not pay joined the plain trials: judge them
+                    continue
                 raise over_budget(reason, need, per_trial)
             batch = FIRST_BATCH - n  # the rest of the first batch
             continue

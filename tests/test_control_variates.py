@@ -413,3 +413,24 @@ def test_a_pass_that_finds_controls_may_pay_probes_them_on_its_budget(monkeypatc
         assert kwargs["max_work"] == pytest.approx(threshold_exact._SIM_OVERRUN * chain / 1e12)
     monkeypatch.setattr(threshold_exact, "_simulated", lambda *a, **k: "simulated")
     assert mdft.threshold_probabilities(model, 6.0, **loose) == "simulated"
+
+
+def test_controls_that_do_not_pay_after_a_probe_leave_their_trials_to_be_judged(monkeypatch):
+    # a controlled probe whose trials do not pay joins them to the plain ones; those are
+    # judged again, not thrown away: here they meet the (loose) tolerances, and answer
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    monkeypatch.setattr(fb, "CONTROLLED_PROBE_SHARE", 100.0)
+    tried = []
+
+    def not_paying(model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
+                   max_work, time_scale, plain, probe_work=None):
+        tried.append(probe_work)
+        plain.add(*_fallback_trials(model, fb.FIRST_BATCH - plain.n, theta, max_steps, gen))
+        return None
+
+    monkeypatch.setattr(fb, "_controlled_answer", not_paying)
+    kw = dict(_probe_kw(model, 1e5), max_steps=1_000, atol=0.01, rt_rtol=0.03)
+    out = fb.simulated_answer(**kw)
+    assert len(tried) == 1 and out[4] == fb.FIRST_BATCH and out[5] <= 0.01 and out[6] <= 0.03
