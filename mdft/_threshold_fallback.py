@@ -149,6 +149,11 @@ class _Tally:
     def n(self):
         return int(self.counts.sum()) + self.n_undecided
 
+    @property
+    def mean_step(self):
+        """Mean decision step of the trials that decided (1 where none did)."""
+        return float(self.sums.sum()) / max(int(self.counts.sum()), 1)
+
     def add(self, choices, all_steps):
         n_opt = self.counts.shape[0]
         chosen = choices >= 0
@@ -250,37 +255,28 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
             return plain.answer(make_result, err_p, err_rt)
         need = max(_trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1, FIRST_BATCH)
         per_trial = plain.work / n
+        probe = None  # the budget of a controlled probe, where one is tried
         if n < FIRST_BATCH:
             # the probe's prediction must be within probe_work as well
-            probing = probe_work is not None
-            limit = min(max_work, probe_work) if probing else max_work
-            if need * per_trial > limit:
-                if (probe_controls and try_controls
-                        and need * per_trial <= CONTROLLED_REACH * limit
-                        and controlled_probe_work(per_trial)
-                        <= CONTROLLED_PROBE_SHARE * limit):
-                    try_controls = False
-                    answer = _controlled_answer(
-                        model, theta, max_steps, atol, rt_rtol, gen, reason, make_result,
-                        max_work - plain.work, plain.sums.sum() / max(int(plain.counts.sum()), 1),
-                        plain, probe_work=limit - plain.work)
-                    if answer is not None:
-                        return answer
-                    batch = 0  # controls that do not pay joined the plain trials: judge them
-                    continue
+            limit = max_work if probe_work is None else min(max_work, probe_work)
+            if need * per_trial <= limit:
+                batch = FIRST_BATCH - n  # the rest of the first batch
+                continue
+            if not (probe_controls and try_controls
+                    and need * per_trial <= CONTROLLED_REACH * limit
+                    and controlled_probe_work(per_trial) <= CONTROLLED_PROBE_SHARE * limit):
                 raise over_budget(reason, need, per_trial)
-            batch = FIRST_BATCH - n  # the rest of the first batch
-            continue
+            probe = limit - plain.work
         # controls, unless fewer plain trials are left than a controlled batch is worth
-        if try_controls and need - n > controlled_cost(per_trial) * FIRST_BATCH:
+        if probe is not None or (try_controls
+                                 and need - n > controlled_cost(per_trial) * FIRST_BATCH):
             try_controls = False
             answer = _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason,
-                                        make_result, max_work - plain.work,
-                                        plain.sums.sum() / max(int(plain.counts.sum()), 1),
-                                        plain)
+                                        make_result, max_work - plain.work, plain.mean_step,
+                                        plain, probe_work=probe)
             if answer is not None:
                 return answer
-            batch = 0  # plain trials go on, the controlled ones among them: judge them all
+            batch = 0  # controls that do not pay joined the plain trials: judge them all
             continue
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
@@ -330,9 +326,9 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
         if need * controlled_cost(per_trial) >= plain_need:
             plain.merge(tally)
             return None
-        if probe_work is not None and n < FIRST_BATCH:
-            if need * per_trial * controlled_cost(per_trial) > probe_work:
-                raise over_budget(reason, need, per_trial, " with control variates")
+        if (probe_work is not None and n < FIRST_BATCH
+                and need * per_trial * controlled_cost(per_trial) > probe_work):
+            raise over_budget(reason, need, per_trial, " with control variates")
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)
         # (after a probe, at least the rest of a first batch)
