@@ -333,6 +333,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     runs = [make(k, i == 0) for i, k in enumerate(kappas)]
     for compute, k, half in zip(runs, kappas, halves):
         compute.half = half
+        compute.kappa = k
         compute.narrow = partial(narrow, k)
     return runs
 

@@ -92,6 +92,11 @@ _SIM_OVERRUN = 2.0
 # cost more than the rare ones that do save). The early hand-over's simulations on a budget
 # of at least that may also go on to controlled trials where their plain probe is over it.
 _PROBE_MIN_WORK = 1e9
+# A pass whose noise is narrower than its cells is not trusted, and the refinement goes on
+# to the first resolution where it is not; where that resolution's states, predicted from the
+# narrow pass's (a plane grid: the square of the ratio of the resolutions), exceed
+# max_states by more than this factor, the chain stops there instead of refining towards it.
+_NARROW_STATES_MARGIN = 1.5
 
 
 def _three_options(model=None, *args, **kwargs):
@@ -437,6 +442,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
                       f"sqrt(3) at {fine.n_states} states, where the estimate itself is not "
                       "trusted")
+            beyond = _trusted_beyond(runs[index + 1:], fine, max_states)
+            if beyond:
+                reason += beyond
+                break
             continue
         reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities (atol={atol:g}) "
                   f"and {err_rt + spread_rt:.2g} relative in the mean response times "
@@ -569,6 +578,22 @@ def _controls_may_pay(answer, sim_work, chain_work, max_steps, probed):
         return False
     probed.append(True)
     return True
+
+
+def _trusted_beyond(later, fine, max_states):
+    """Why the first of the ``later`` passes whose noise is not narrower than its cells is
+    out of reach, or "" when it may be within ``max_states``: its states, predicted from
+    those of ``fine`` (a narrow pass) as the square of the ratio of their resolutions (a
+    plane grid of cells that many times smaller), exceed ``max_states`` by more than
+    ``_NARROW_STATES_MARGIN`` times."""
+    for run in later:
+        if not run.narrow():
+            states = fine.n_states * (fine.resolution / run.kappa) ** 2
+            if states <= _NARROW_STATES_MARGIN * max_states:
+                return ""
+            return (f"; the first resolution where it is, {run.kappa:.3g}, would need about "
+                    f"{states:.3g} states")
+    return ""
 
 
 def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, atol, rt_rtol,

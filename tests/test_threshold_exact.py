@@ -346,6 +346,45 @@ def test_noise_narrower_than_the_cells_at_every_resolution_refuses_without_build
             threshold_probabilities(model, 10.0, method=method, fallback="raise")
 
 
+def test_narrow_passes_stop_where_the_first_trusted_grid_is_beyond_max_states():
+    # sigma2 = 0.1: the first passes are narrow along one axis (not trusted), and the first
+    # resolution where they are not has about 8 times the states of resolution 1. Far beyond
+    # max_states, the chain stops at the narrow pass instead of refining up to max_states
+    # first, and says why.
+    model = MDFTModel(SETS["compromise"], [0.5, 0.5], **{**CANONICAL, "sigma2": 0.1})
+    built = []
+    real_build = _plane_passes.build_moment_chain
+
+    def counted(*args, **kwargs):
+        chain = real_build(*args, **kwargs)
+        built.append(chain.n_states)
+        return chain
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_plane_passes, "build_moment_chain", counted)
+        with pytest.raises(ValueError, match=r"narrower than the cells .* the first resolution "
+                                             r"where it is, [0-9.]+, would need about"):
+            threshold_probabilities(model, 12.0, max_states=4000, fallback="raise")
+    assert max(built) < 4000  # no pass went on to reach max_states
+
+
+def test_the_states_of_the_first_trusted_grid_are_predicted_with_a_margin():
+    from mdft.threshold_exact import _NARROW_STATES_MARGIN, _trusted_beyond
+
+    def run(kappa, narrow):
+        return SimpleNamespace(kappa=kappa, narrow=lambda: narrow)
+
+    fine = SimpleNamespace(n_states=1000, resolution=1.0)
+    later = [run(0.841, True), run(0.707, True), run(0.5, False), run(0.354, False)]
+    # resolution 0.5 is the first trusted one: about 4,000 states
+    assert _trusted_beyond(later, fine, 4000) == ""
+    assert _trusted_beyond(later, fine, 4000 / _NARROW_STATES_MARGIN + 1) == ""
+    why = _trusted_beyond(later, fine, 4000 / _NARROW_STATES_MARGIN - 1)
+    assert "0.5, would need about 4e+03 states" in why
+    # no trusted resolution left: nothing to predict (narrow_everywhere refuses earlier)
+    assert _trusted_beyond(later[:2], fine, 10) == ""
+
+
 @pytest.mark.parametrize("options, phi2", [(SETS["compromise"], 2.5), (SETS["compromise"], 1.0),
                                            ([A, B], 2.5)])
 def test_unstable_summed_preference_is_refused(options, phi2):
