@@ -385,6 +385,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
             closure_bound = True
             break
+        beyond = _trusted_beyond(runs[index + 1:], result, max_states) if closure.get(
+            "narrow", False) else ""
+        if beyond:
+            reason = _narrow(result) + beyond
+            break
         if coarse is None:
             continue
         err_p, err_rt = error_estimate(fine, coarse)
@@ -439,13 +444,7 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                     logger.info("threshold_probabilities: the probe says they cost more; "
                                 "refining")
         if narrow:
-            reason = (f"the noise is narrower than the cells (spacing {fine.spacing:.3g}) over "
-                      f"sqrt(3) at {fine.n_states} states, where the estimate itself is not "
-                      "trusted")
-            beyond = _trusted_beyond(runs[index + 1:], fine, max_states)
-            if beyond:
-                reason += beyond
-                break
+            reason = _narrow(fine)
             continue
         reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities (atol={atol:g}) "
                   f"and {err_rt + spread_rt:.2g} relative in the mean response times "
@@ -578,6 +577,12 @@ def _controls_may_pay(answer, sim_work, chain_work, max_steps, probed):
         return False
     probed.append(True)
     return True
+
+
+def _narrow(result):
+    """Why a pass whose noise is narrower than its cells does not answer."""
+    return (f"the noise is narrower than the cells (spacing {result.spacing:.3g}) over sqrt(3) "
+            f"at {result.n_states} states, where the estimate itself is not trusted")
 
 
 def _trusted_beyond(later, fine, max_states):

@@ -346,7 +346,7 @@ def test_noise_narrower_than_the_cells_at_every_resolution_refuses_without_build
             threshold_probabilities(model, 10.0, method=method, fallback="raise")
 
 
-def test_narrow_passes_stop_where_the_first_trusted_grid_is_beyond_max_states():
+def test_narrow_passes_stop_where_the_first_trusted_grid_is_beyond_max_states(monkeypatch):
     # sigma2 = 0.1: the first passes are narrow along one axis (not trusted), and the first
     # resolution where they are not has about 8 times the states of resolution 1. Far beyond
     # max_states, the chain stops at the narrow pass instead of refining up to max_states
@@ -360,11 +360,10 @@ def test_narrow_passes_stop_where_the_first_trusted_grid_is_beyond_max_states():
         built.append(chain.n_states)
         return chain
 
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(_plane_passes, "build_moment_chain", counted)
-        with pytest.raises(ValueError, match=r"narrower than the cells .* the first resolution "
-                                             r"where it is, [0-9.]+, would need about"):
-            threshold_probabilities(model, 12.0, max_states=4000, fallback="raise")
+    monkeypatch.setattr(_plane_passes, "build_moment_chain", counted)
+    with pytest.raises(ValueError, match=r"narrower than the cells .* the first resolution "
+                                         r"where it is, [0-9.]+, would need about"):
+        threshold_probabilities(model, 12.0, max_states=4000, fallback="raise")
     assert max(built) < 4000  # no pass went on to reach max_states
 
 
