@@ -385,11 +385,12 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                       f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
             closure_bound = True
             break
-        beyond = _trusted_beyond(runs[index + 1:], result, max_states) if closure.get(
-            "narrow", False) else ""
-        if beyond:
-            reason = _narrow(result) + beyond
-            break
+        narrow = closure.get("narrow", False)
+        if narrow:
+            beyond = _trusted_beyond(runs[index + 1:], result, max_states)
+            if beyond:
+                reason = _narrow(result) + beyond
+                break
         if coarse is None:
             continue
         err_p, err_rt = error_estimate(fine, coarse)
@@ -405,7 +406,6 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         logger.debug("resolution %.3g: estimated error %.2g and %.2g, of which the closure's "
                      "%.2g and %.2g", fine.resolution, err_p + spread_p, err_rt + spread_rt,
                      spread_p, spread_rt)
-        narrow = closure.get("narrow", False)
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
         if not half:
@@ -585,15 +585,15 @@ def _narrow(result):
             f"at {result.n_states} states, where the estimate itself is not trusted")
 
 
-def _trusted_beyond(later, fine, max_states):
+def _trusted_beyond(later, result, max_states):
     """Why the first of the ``later`` passes whose noise is not narrower than its cells is
     out of reach, or "" when it may be within ``max_states``: its states, predicted from
-    those of ``fine`` (a narrow pass) as the square of the ratio of their resolutions (a
-    plane grid of cells that many times smaller), exceed ``max_states`` by more than
-    ``_NARROW_STATES_MARGIN`` times."""
+    those of ``result`` (a narrow pass's answer) as the square of the ratio of their
+    resolutions (a plane grid of cells that many times smaller), exceed ``max_states`` by
+    more than ``_NARROW_STATES_MARGIN`` times."""
     for run in later:
         if not run.narrow():
-            states = fine.n_states * (fine.resolution / run.kappa) ** 2
+            states = result.n_states * (result.resolution / run.kappa) ** 2
             if states <= _NARROW_STATES_MARGIN * max_states:
                 return ""
             return (f"; the first resolution where it is, {run.kappa:.3g}, would need about "
