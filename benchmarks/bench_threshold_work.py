@@ -33,7 +33,7 @@ import time
 import numba
 import numpy as np
 
-from mdft import _plane_moment
+from mdft import _plane_step
 from mdft._plane_chain import (_PARTS_MIN_NONZEROS, build_moment_chain, propagate_moments,
                                tail_track)
 from mdft._threshold_fallback import controlled_cost
@@ -56,7 +56,7 @@ def occupied_step_seconds(chain, steps=60, repeats=2):
         occ = np.zeros((n, 3))
         errors = np.zeros(3)
         start = time.perf_counter()
-        _plane_moment.propagate(chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0,
+        _plane_step.propagate(chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0,
                                 chain.r1, chain.sref, chain.snext, chain.b_sum,
                                 chain.delta**2, x, m, q, rt_pmf, occ, 0.0, False, 0.0, 0.0,
                                 0.01, errors, in_parts, chain.frontier, steps, 1,

@@ -1,9 +1,10 @@
 """The moment chain of three-option threshold stopping.
 
-Python side of the compiled kernels in :mod:`mdft._plane_moment`: chooses
-the grid of the zero-sum plane from the model and a resolution ``kappa``
-(cell size in per-step standard deviations), applies the variance correction,
-builds and runs the chain, and fits the reference sums for the next pass.
+Python side of the compiled kernels in :mod:`mdft._plane_moment` (the build) and
+:mod:`mdft._plane_step` (the steps): chooses the grid of the zero-sum plane from the
+model and a resolution ``kappa`` (cell size in per-step standard deviations), applies
+the variance correction, builds and runs the chain, and fits the reference sums for the
+next pass.
 Inputs are validated by :func:`mdft.threshold_probabilities`;
 ``docs/threshold_exact.md`` describes the method.
 """
@@ -18,7 +19,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from . import _plane_moment
+from . import _plane_moment, _plane_step
 from ._lattice_chain import (TooManyStates, chain_sum_bounds, pair_parameters,
                              sum_is_constant)
 from ._plane_krylov import krylov_tail
@@ -36,7 +37,7 @@ _LEVEL_FACTOR = 1.0
 # Largest index box (levels x cells x cells) the builder may allocate.
 _MAX_BOX = 40_000_000
 # With more than one numba thread, chains with at least this many nonzeros are propagated in
-# parts (mdft._plane_moment.PARTS of them whatever the number of threads, so that the sums are
+# parts (mdft._plane_step.PARTS of them whatever the number of threads, so that the sums are
 # the same for any number above one); smaller ones, and all on one thread, serially: waking
 # the threads costs more than it saves, and parts on one thread cost 10-30 % more.
 _PARTS_MIN_NONZEROS = 20_000
@@ -253,7 +254,7 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, r
 
 
 def tail_track(max_steps, n_states):
-    """Fresh state of the tail's checks for :func:`mdft._plane_moment.propagate` (its
+    """Fresh state of the tail's checks for :func:`mdft._plane_step.propagate` (its
     ``hazard``, ``done``, ``snaps`` and ``dist``), carried across a pass's pauses."""
     return (np.zeros(max_steps), np.zeros((2, 3)), np.zeros((2, n_states)),
             np.full((3, 2), -1.0))
@@ -347,7 +348,7 @@ def _propagate(chain, max_steps, tol, budget, second, floor, in_parts, krylov,
     t_first = 1
     dropped = escaped = 0.0
     while True:
-        steps, tail_start, mass = _plane_moment.propagate(
+        steps, tail_start, mass = _plane_step.propagate(
             chain.row_ptr, chain.cols, chain.t0, chain.t1, chain.r0, chain.r1, chain.sref,
             chain.snext, chain.b_sum, chain.delta**2, x, m, q, rt_pmf, occ, tol,
             bool(second), float(budget[0]), float(budget[1]), float(floor), errors,

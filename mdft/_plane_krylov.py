@@ -25,7 +25,7 @@ import math
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from ._plane_moment import PARTS, apply_step, krylov_powers
+from ._plane_step import PARTS, apply_step, krylov_powers
 
 logger = logging.getLogger(__name__)
 

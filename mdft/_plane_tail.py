@@ -1,4 +1,4 @@
-"""The extrapolated tail of the three-option chain (compiled helpers of :mod:`mdft._plane_moment`).
+"""The extrapolated tail of the three-option chain (compiled helpers of :mod:`mdft._plane_step`).
 
 Nothing here validates its input. Once the undecided mass is in the chain's
 slowest mode, each step takes the same share ``h`` (the hazard) of it and

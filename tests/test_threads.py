@@ -39,13 +39,13 @@ def test_a_busy_machine_runs_the_call_on_one_thread_with_the_same_answer(monkeyp
     if threads < 2:
         numba.set_num_threads(2)
     seen = []
-    propagate = _plane_chain._plane_moment.propagate
+    propagate = _plane_chain._plane_step.propagate
 
     def spy(*args):
         seen.append((numba.get_num_threads(), _threads.configured_threads(), args[21]))
         return propagate(*args)
 
-    monkeypatch.setattr(_plane_chain._plane_moment, "propagate", spy)
+    monkeypatch.setattr(_plane_chain._plane_step, "propagate", spy)
     try:
         configured = numba.get_num_threads()
         answers = {}

@@ -173,7 +173,7 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_par
     # in the sum, T(s) = t0 + t1 (s - s_ref), and the next sum is s' = s_next + b (s - s_ref),
     # so the first moment reaching the next state is E[s' T(s)] = s_next t0 + b t1 delta**2.
     # The same, serially and in parallel parts.
-    from mdft import _plane_moment
+    from mdft import _plane_step
     from mdft._plane_chain import tail_track
 
     t0, t1, s_ref, s_next, b, delta = 0.6, 0.05, 10.0, 9.0, 0.9, 1.5
@@ -181,7 +181,7 @@ def test_moment_step_carries_the_covariance_of_the_sum_and_the_transition(in_par
     m = np.array([s_ref, 0.0])
     q = np.zeros(2)
     rt_pmf = np.zeros((2, 3))
-    _plane_moment.propagate(
+    _plane_step.propagate(
         np.array([0, 1, 1]), np.array([1], dtype=np.int32), np.array([t0]), np.array([t1]),
         np.zeros((2, 3)), np.zeros((2, 3)), np.array([s_ref, s_ref]), np.array([s_next, s_next]),
         b, delta**2, x, m, q, rt_pmf, np.zeros((2, 3)), 0.0, False, 0.0, 0.0, 0.01, np.zeros(3),

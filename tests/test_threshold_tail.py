@@ -286,7 +286,7 @@ def test_a_run_stops_on_the_size_of_the_undecided_mass_not_its_signed_sum():
 
 
 def test_krylov_powers_match_matrix_powers():
-    from mdft._plane_moment import krylov_powers
+    from mdft._plane_step import krylov_powers
 
     rng = np.random.default_rng(0)
     H = np.triu(rng.normal(size=(6, 6)) * 0.3, -1)
