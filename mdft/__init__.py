@@ -13,7 +13,10 @@ from .model import (
     distance_matrix,
     feedback_matrix,
 )
-from .simulate import FixedTime, SimulationResult, Threshold, decide, simulate
+from .stopping import FixedTime, Threshold
+from .simulation_result import SimulationResult
+from .simulate import simulate
+from .decide import decide
 from .closed_form import (
     ClosedFormAccuracyWarning,
     MixtureProbabilities,

@@ -28,7 +28,8 @@ from ._export import builtin, describe_stopping, fmt, stopping_dict, table, to_j
 from ._validation import MAX_SAMPLES, as_count, as_float_array, as_generator, as_scalar
 from .closed_form import choice_probabilities
 from .model import MDFTModel
-from .simulate import FixedTime, Threshold, simulate
+from .simulate import simulate
+from .stopping import FixedTime, Threshold
 
 __all__ = [
     "ATTRACTION",

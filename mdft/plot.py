@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from .effects import ContextEffects, EffectResult
-    from .simulate import SimulationResult
+    from .simulation_result import SimulationResult
 
 __all__ = ["plot_choice_shares", "plot_context_effects", "plot_trajectories"]
 

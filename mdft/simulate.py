@@ -1,4 +1,4 @@
-"""Monte Carlo simulation of MDFT: stopping rules, :func:`simulate` and :func:`decide`.
+"""Monte Carlo simulation of MDFT: :func:`simulate`, and the simulation fallback's trials.
 
 The dynamics (``docs/concepts.md``, Roe, Busemeyer & Townsend 2001) is
 
@@ -6,8 +6,11 @@ The dynamics (``docs/concepts.md``, Roe, Busemeyer & Townsend 2001) is
 
 with ``W(t)`` the unit vector of the attribute attended at step ``t``
 (attribute ``j`` with probability ``w[j]``) and ``eps(t) ~ N(0, sigma2 I)``.
-A deliberation stops after a fixed number of steps (:class:`FixedTime`) or as
-soon as a preference reaches a threshold (:class:`Threshold`).
+A deliberation stops after a fixed number of steps (:class:`mdft.FixedTime`) or
+as soon as a preference reaches a threshold (:class:`mdft.Threshold`), both in
+:mod:`mdft.stopping`; the outcome is a :class:`mdft.SimulationResult`
+(:mod:`mdft.simulation_result`). :func:`mdft.decide` (:mod:`mdft.decide`) is
+the fast path of fixed-time choices for agents.
 
 Randomness: every call resolves ``rng`` with :func:`numpy.random.default_rng`,
 draws the states of a fixed number of independent streams from it (one per
@@ -18,40 +21,27 @@ The result depends on the seed only, never on the number of threads.
 from __future__ import annotations
 
 import math
-import numbers
-import os
-from typing import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from . import _control_kernels, _kernels
-from ._typing import ArrayLike, SeedLike
-from ._validation import (MAX_OPTIONS, MAX_SAMPLES, MAX_STEPS, MAX_THETA, as_count,
-                          as_float_array, as_generator, as_scalar)
+from ._typing import SeedLike
+from ._validation import MAX_SAMPLES, as_count, as_generator
 from .model import MDFTModel, warn_if_growing
-from ._repr import compact_repr
-from ._export import builtin, describe_stopping, fmt, labels_for, stopping_dict, table, to_json
+from .simulation_result import SimulationResult
+from .stopping import FixedTime, Threshold
 
-__all__ = ["FixedTime", "Threshold", "SimulationResult", "simulate", "decide"]
+__all__ = ["simulate"]
 
 #: Number of chunks (independent random streams) the trials are split into.
 #: Fixed, so that the same seed gives the same result on any number of threads.
 N_CHUNKS = 64
-
-#: Largest number of decisions per chunk in :func:`decide`.
-_DECISIONS_PER_CHUNK = 256
 
 #: Below this many steps of work (trials x steps) the chunks run one after the
 #: other in the calling thread: waking the thread pool would cost more than
 #: it saves. The chunks and their streams are the same either way, and so is
 #: the result.
 _PARALLEL_WORK = 200_000
-
-#: The same for :func:`decide`, whose steps cost far more (the feedback product and the
-#: noise of every option at each step): a few hundred microseconds of work already pay
-#: for waking the pool.
-_PARALLEL_DECISION_WORK = 10_000
 
 #: Largest attention table (n_steps * n_attributes * n_options doubles) the
 #: fixed-time shortcut may build; past it the step-by-step kernel is used.
@@ -72,259 +62,6 @@ _MAX_TRAJECTORY_VALUES = 20_000_000
 
 #: Sentinel of ``choices`` and ``decision_steps`` for an undecided trial.
 UNDECIDED = -1
-
-
-# ---------------------------------------------------------------- stopping rules
-@dataclass(frozen=True)
-class FixedTime:
-    """Stop after a fixed number of deliberation steps and choose ``argmax P(n_steps)``.
-
-    Parameters
-    ----------
-    n_steps : int
-        Deliberation time ``T``, at least 1 and at most 10,000,000 (``MAX_STEPS``).
-
-    Examples
-    --------
-    >>> FixedTime(100)
-    FixedTime(n_steps=100)
-    """
-
-    n_steps: int
-
-    def __post_init__(self):
-        object.__setattr__(self, "n_steps", as_count("n_steps", self.n_steps, high=MAX_STEPS))
-
-
-@dataclass(frozen=True)
-class Threshold:
-    """Stop as soon as some preference reaches ``theta``; give up after ``max_steps``.
-
-    Parameters
-    ----------
-    theta : float
-        Preference threshold, > 0 and at most 1e300 (``MAX_THETA``: the preference that
-        first passes it is still finite, so the choice is made among numbers).
-    max_steps : int, default 10_000
-        Longest deliberation, at most 10,000,000 (``MAX_STEPS``). A trial that has not reached the threshold after
-        ``max_steps`` steps is *undecided*: it is counted in
-        ``SimulationResult.n_undecided``, never dropped.
-
-    Notes
-    -----
-    The trial stops at the first step ``t >= 1`` with ``max_i P_i(t) >= theta``
-    and chooses the option with the largest preference at that step (when
-    several options cross in the same step, the one furthest past the
-    threshold); exact ties are broken uniformly at random.
-
-    Examples
-    --------
-    >>> Threshold(17.5)
-    Threshold(theta=17.5, max_steps=10000)
-    """
-
-    theta: float
-    max_steps: int = 10_000
-
-    def __post_init__(self):
-        object.__setattr__(self, "theta", as_scalar("theta", self.theta, low=0.0,
-                                                    low_inclusive=False, high=MAX_THETA))
-        object.__setattr__(self, "max_steps", as_count("max_steps", self.max_steps,
-                                                       high=MAX_STEPS))
-
-
-# ---------------------------------------------------------------- result
-@dataclass(frozen=True)
-class SimulationResult:
-    """Outcome of :func:`simulate`.
-
-    Attributes
-    ----------
-    probabilities : ndarray, shape (n_options,)
-        ``counts / n_samples``. With undecided trials these sum to
-        ``1 - p_undecided``.
-    counts : ndarray of int, shape (n_options,)
-        Number of trials that chose each option.
-    standard_errors : ndarray, shape (n_options,)
-        Binomial standard errors ``sqrt(p (1 - p) / n_samples)``.
-    n_samples : int
-        Number of simulated trials.
-    n_undecided : int
-        Trials that had not decided after ``max_steps`` (always 0 for
-        :class:`FixedTime`).
-    p_undecided : float
-        ``n_undecided / n_samples``.
-    stopping : FixedTime or Threshold
-        The stopping rule used.
-    method : str
-        ``"shortcut"`` (fixed time, exact linear decomposition of ``P(T)``) or
-        ``"step-by-step"``.
-    choices : ndarray of int, shape (n_samples,), or None
-        Threshold stopping only: the option chosen in each trial, ``-1`` for
-        an undecided trial.
-    decision_steps : ndarray of int, shape (n_samples,), or None
-        Threshold stopping only: the step ``1 <= t <= max_steps`` at which each
-        trial decided (its response time), ``-1`` for an undecided trial.
-    mean_response_times : ndarray, shape (n_options,), or None
-        Threshold stopping only: mean decision step of the trials that chose
-        each option (NaN for an option never chosen).
-    trajectories : ndarray, shape (n_trajectories, n_recorded + 1, n_options), or None
-        Preferences ``P(0), P(1), ...`` of the first ``n_trajectories`` trials.
-        For fixed time ``n_recorded = n_steps``; for threshold stopping it is the
-        longest of the recorded deliberations, and the rows after a trial's
-        decision are NaN.
-    trajectory_choices : ndarray of int, shape (n_trajectories,), or None
-        The options chosen in the recorded trials (``-1``: undecided).
-
-    Examples
-    --------
-    >>> import mdft
-    >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-    ...                        phi1=0.022, phi2=0.05, beta=12.0)
-    >>> res = mdft.simulate(model, 1000, stopping=mdft.Threshold(30.0, max_steps=50),
-    ...                     rng=0, n_trajectories=2)
-    >>> int(res.counts.sum() + res.n_undecided)
-    1000
-    >>> res.trajectories.shape[0], res.trajectories.shape[2]
-    (2, 2)
-    """
-
-    __repr__ = compact_repr
-
-    probabilities: np.ndarray
-    counts: np.ndarray
-    standard_errors: np.ndarray
-    n_samples: int
-    n_undecided: int
-    p_undecided: float
-    stopping: FixedTime | Threshold
-    method: str
-    choices: np.ndarray | None = None
-    decision_steps: np.ndarray | None = None
-    mean_response_times: np.ndarray | None = None
-    trajectories: np.ndarray | None = None
-    trajectory_choices: np.ndarray | None = None
-
-    @property
-    def n_options(self) -> int:
-        """Number of options of the simulated model."""
-        return self.counts.shape[0]
-
-    def response_times(self, option: int) -> np.ndarray:
-        """Decision steps of the trials that chose ``option`` (threshold stopping).
-
-        Examples
-        --------
-        >>> import mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> res = mdft.simulate(model, 200, stopping=mdft.Threshold(5.0), rng=0)
-        >>> bool(res.response_times(0).min() >= 1)
-        True
-        """
-        self._need_threshold("response_times")
-        option = _option_index(option, self.n_options)
-        return self.decision_steps[self.choices == option]
-
-    def response_time_pmf(self) -> np.ndarray:
-        """Empirical ``pmf[t, i]``: fraction of trials that chose option ``i`` at step ``t + 1``.
-
-        Shape (max_steps, n_options); the entries sum to ``1 - p_undecided``.
-
-        Examples
-        --------
-        >>> import mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> res = mdft.simulate(model, 200, stopping=mdft.Threshold(5.0, max_steps=500),
-        ...                     rng=0)
-        >>> pmf = res.response_time_pmf()
-        >>> pmf.shape
-        (500, 2)
-        >>> bool(abs(pmf.sum(axis=0) - res.probabilities).max() < 1e-12)
-        True
-        """
-        self._need_threshold("response_time_pmf")
-        decided = self.choices >= 0
-        pmf = np.zeros((self.stopping.max_steps, self.n_options))
-        np.add.at(pmf, (self.decision_steps[decided] - 1, self.choices[decided]), 1.0)
-        return pmf / self.n_samples
-
-    def summary(self, labels: Sequence[str] | None = None) -> str:
-        """A text table: each option's share, standard error, count (and mean response time).
-
-        Parameters
-        ----------
-        labels : sequence of str, optional
-            One name per option; ``0, 1, ...`` by default.
-
-        Examples
-        --------
-        >>> import mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> res = mdft.simulate(model, 1000, stopping=mdft.FixedTime(50), rng=0)
-        >>> print(res.summary(labels=["A", "B"]))  # doctest: +NORMALIZE_WHITESPACE
-        1,000 trials, fixed time, 50 steps (shortcut)
-        option     P(choose)    s.e.  count
-        A             0.5250  0.0158    525
-        B             0.4750  0.0158    475
-        undecided     0.0000              0
-        """
-        names = labels_for(labels, self.n_options)
-        with_rt = self.mean_response_times is not None
-        header = ["option", "P(choose)", "s.e.", "count"] + (["mean RT"] if with_rt else [])
-        rows = []
-        for i, name in enumerate(names):
-            row = [name, fmt(self.probabilities[i]), fmt(self.standard_errors[i]),
-                   int(self.counts[i])]
-            rows.append(row + ([fmt(self.mean_response_times[i], ".1f")] if with_rt else []))
-        rows.append(["undecided", fmt(self.p_undecided), "", self.n_undecided]
-                    + ([""] if with_rt else []))
-        title = f"{self.n_samples:,} trials, {describe_stopping(self.stopping)} ({self.method})"
-        return title + "\n" + table(header, rows)
-
-    def to_dict(self, *, trials: bool = False) -> dict:
-        """The result as JSON-ready builtins (NaN, e.g. the mean response time of an option
-        never chosen, becomes None).
-
-        Parameters
-        ----------
-        trials : bool, default False
-            Also export the per-trial arrays (``choices``, ``decision_steps``) and the
-            recorded trajectories, which can be large.
-
-        Examples
-        --------
-        >>> import mdft
-        >>> model = mdft.MDFTModel([[1, 3], [3, 1]], [0.5, 0.5],
-        ...                        phi1=0.022, phi2=0.05, beta=12.0)
-        >>> d = mdft.simulate(model, 100, stopping=mdft.FixedTime(10), rng=0).to_dict()
-        >>> d["stopping"], d["counts"], d["n_undecided"]
-        ({'rule': 'fixed_time', 'n_steps': 10}, [45, 55], 0)
-        """
-        out = {
-            "n_options": self.n_options, "n_samples": self.n_samples,
-            "stopping": stopping_dict(self.stopping), "method": self.method,
-            "probabilities": self.probabilities, "standard_errors": self.standard_errors,
-            "counts": self.counts, "n_undecided": self.n_undecided,
-            "p_undecided": self.p_undecided, "mean_response_times": self.mean_response_times,
-        }
-        if trials:
-            out.update(choices=self.choices, decision_steps=self.decision_steps,
-                       trajectories=self.trajectories,
-                       trajectory_choices=self.trajectory_choices)
-        return builtin(out)
-
-    def to_json(self, path: str | os.PathLike | None = None, *, trials: bool = False) -> str:
-        """:meth:`to_dict` as JSON text, also written to ``path`` if given."""
-        return to_json(self.to_dict(trials=trials), path)
-
-    def _need_threshold(self, what: str) -> None:
-        if not isinstance(self.stopping, Threshold):
-            raise ValueError(
-                f"{what} needs a result of threshold stopping (got stopping={self.stopping!r})"
-            )
 
 
 # ---------------------------------------------------------------- simulate
@@ -616,119 +353,6 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     return choices, steps, upper + lower
 
 
-# ---------------------------------------------------------------- decide
-def decide(M: ArrayLike, w: ArrayLike, *, phi1: float, phi2: float, beta: float,
-           sigma2: float = 1.0, n_steps: int, rng: SeedLike = None) -> int | np.ndarray:
-    """One fixed-time MDFT deliberation per decision, the model built inside the kernel.
-
-    The fast path for agents that choose among options at every step: no
-    :class:`MDFTModel` is built; the Hotaling distance, the feedback matrix
-    ``S`` and the standard contrast are computed from each ``M`` inside the
-    compiled kernel, ``P(0) = 0``, and one trial of ``n_steps`` steps decides.
-
-    Parameters
-    ----------
-    M : array_like, shape (n_options, n_attributes) or (n_decisions, n_options, n_attributes)
-        Evaluations of one decision, or of a batch of decisions.
-    w : array_like, shape (n_attributes,) or (n_decisions, n_attributes)
-        Attention weights, shared by the batch or one row per decision;
-        non-negative, each row summing to one.
-    phi1, phi2, beta : float
-        Parameters of the feedback matrix ``S = I - phi2 exp(-phi1 D**2)`` and
-        of Hotaling's distance ``D`` (``docs/concepts.md``), all >= 0.
-    sigma2 : float, default 1.0
-        Variance of the valence noise, >= 0.
-    n_steps : int
-        Deliberation time, at least 1 and at most 10,000,000.
-    rng : None, int, array_like or numpy.random.Generator, optional
-        Resolved with :func:`numpy.random.default_rng`. A batch is split into
-        chunks whose number depends on ``n_decisions`` only, so the result does
-        not depend on the number of threads.
-
-    Returns
-    -------
-    int or ndarray of int, shape (n_decisions,)
-        The chosen option(s).
-
-    Notes
-    -----
-    Equivalent in distribution to ``simulate(MDFTModel(M, w, ...), 1,
-    stopping=FixedTime(n_steps))`` for each decision, without building the
-    model. Like :func:`simulate`, it refuses a deliberation over which the
-    preferences would overflow (spectral radius ``rho(S) > 1`` with
-    ``n_steps * log(rho(S)) > 690``); the check computes ``rho(S)`` only for
-    batches whose Gershgorin bound ``|1 - phi2| + phi2 (n_options - 1)``
-    allows such growth.
-
-    Examples
-    --------
-    >>> import mdft
-    >>> M = [[0.9, 0.1], [0.1, 0.9], [0.5, 0.5]]
-    >>> choice = mdft.decide(M, [0.5, 0.5], phi1=0.01, phi2=0.01, beta=2.0,
-    ...                      n_steps=100, rng=0)
-    >>> choice
-    0
-    >>> mdft.decide([M, M], [0.5, 0.5], phi1=0.01, phi2=0.01, beta=2.0,
-    ...             n_steps=100, rng=0).shape
-    (2,)
-    """
-    Marr = as_float_array("M", M)
-    if Marr.ndim not in (2, 3):
-        raise ValueError(
-            "M must have shape (n_options, n_attributes) or (n_decisions, n_options, "
-            f"n_attributes) (got shape {Marr.shape})"
-        )
-    single = Marr.ndim == 2
-    batch = np.ascontiguousarray(Marr[None] if single else Marr)
-    n_decisions, n_options, n_attributes = batch.shape
-    if n_decisions < 1:
-        raise ValueError(f"M must hold at least one decision (got shape {Marr.shape})")
-    if n_options < 2:
-        raise ValueError(
-            f"M must have at least 2 options (got shape {Marr.shape}); MDFT compares options"
-        )
-    if n_options > MAX_OPTIONS:
-        raise ValueError(f"M must have at most {MAX_OPTIONS:,} options (got shape {Marr.shape})")
-    if n_attributes < 1:
-        raise ValueError(f"M must have at least 1 attribute (got shape {Marr.shape})")
-    if not np.isfinite(batch).all():
-        raise ValueError("M must contain only finite values (got NaN or infinity in M)")
-    w_rows = _batch_attention(w, n_decisions, n_attributes)
-    phi1 = as_scalar("phi1", phi1, low=0.0)
-    phi2 = as_scalar("phi2", phi2, low=0.0)
-    beta = as_scalar("beta", beta, low=0.0)
-    sigma2 = as_scalar("sigma2", sigma2, low=0.0)
-    n_steps = as_count("n_steps", n_steps, high=MAX_STEPS)
-    spread = float(batch.max() - batch.min())
-    if spread > 1e70 or max(beta, 1.0) * n_attributes * spread**2 > 1e150:
-        raise ValueError(
-            f"M and beta={beta:g} give distances between options too large for floating point "
-            f"(M spans {spread:.3g}); rescale M or lower beta"
-        )
-    _check_batch_growth(batch, phi1, phi2, beta, n_steps)
-    generator = as_generator("rng", rng)
-    n_chunks = -(-n_decisions // _DECISIONS_PER_CHUNK)
-    n_chunks = min(N_CHUNKS, max(n_chunks, 2 if n_decisions > 1 else 1))
-    states = _stream_states(generator, n_chunks)
-    bounds = (np.arange(n_chunks + 1, dtype=np.int64) * n_decisions) // n_chunks
-    cuts = _attention_cuts(w_rows)
-    out = np.empty(n_decisions, dtype=np.int64)
-    args = (batch, cuts, phi1, phi2, beta, math.sqrt(sigma2), n_steps)
-    with np.errstate(over="ignore"):
-        if n_decisions * n_steps >= _PARALLEL_DECISION_WORK:
-            _kernels.decide_chunks(states, bounds, *args, out)
-        else:
-            for c in _nonempty_chunks(bounds):
-                _kernels.decide_chunk(states[c], bounds[c], bounds[c + 1], *args, out)
-    if np.any(out < 0):
-        raise ValueError(
-            f"preferences overflow over n_steps={n_steps} steps in {int(np.sum(out < 0))} of "
-            f"{n_decisions} decisions (they are not finite, so argmax P(T) means nothing); "
-            "lower n_steps or phi2, raise phi1, or rescale M"
-        )
-    return int(out[0]) if single else out
-
-
 # ---------------------------------------------------------------- helpers
 def _stream_states(generator: np.random.Generator, n_streams: int) -> np.ndarray:
     """Draw the xoshiro256++ states of ``n_streams`` independent streams.
@@ -827,26 +451,6 @@ def _check_growth(spectral_radius: float, n_steps: int) -> None:
         )
 
 
-def _check_batch_growth(batch, phi1, phi2, beta, n_steps):
-    """:func:`_check_growth` for the largest spectral radius of a batch of decisions.
-
-    Every row of ``S = I - phi2 exp(-phi1 D**2)`` has absolute sum at most
-    ``|1 - phi2| + phi2 (n - 1)`` (Gershgorin), so the eigenvalues are computed only when
-    that bound allows overflow; ``S`` is symmetric, hence ``eigvalsh``.
-    """
-    n_options, n_attributes = batch.shape[1:]
-    bound = abs(1.0 - phi2) + phi2 * (n_options - 1)
-    if bound <= 1.0 or n_steps * math.log(bound) <= 690.0:
-        return
-    worst = 0.0
-    for lo in range(0, batch.shape[0], 4096):
-        M = batch[lo:lo + 4096]
-        diff = M[:, :, None, :] - M[:, None, :, :]
-        D = (diff**2).sum(axis=3) + (beta - 1.0) * diff.sum(axis=3) ** 2 / n_attributes
-        S = np.eye(n_options) - phi2 * np.exp(-phi1 * D**2)
-        worst = max(worst, float(np.abs(np.linalg.eigvalsh(S)).max()))
-    _check_growth(worst, n_steps)
-
 
 def _block_size(n_steps: int, n_attributes: int, n_options: int) -> int:
     """Steps per block of the attention lookup: the most whose table fits the budget.
@@ -897,42 +501,10 @@ def _noise_factor(S, C, sigma2, n_steps):
     return np.ascontiguousarray(vectors[:, keep] * np.sqrt(eigenvalues[keep]))
 
 
-def _batch_attention(w, n_decisions: int, n_attributes: int) -> np.ndarray:
-    """Validate ``w`` of :func:`decide`, vectorised: rows (n, n_attributes) summing to one."""
-    arr = as_float_array("w", w)
-    if arr.ndim == 1:
-        arr = arr[None]
-        shape_ok = arr.shape[1] == n_attributes
-    else:
-        shape_ok = arr.ndim == 2 and arr.shape == (n_decisions, n_attributes)
-    if not shape_ok:
-        raise ValueError(
-            f"w must have shape ({n_attributes},) or ({n_decisions}, {n_attributes}) to match "
-            f"M (got shape {np.shape(w)})"
-        )
-    if arr.min() < 0:
-        bad = arr[(arr < 0).any(axis=1)][0]
-        raise ValueError(f"w must be non-negative (got {bad.tolist()})")
-    totals = arr.sum(axis=1)
-    if np.abs(totals - 1.0).max() > 1e-6:
-        off = np.abs(totals - 1.0) > 1e-6
-        raise ValueError(
-            f"w must sum to 1 (got {totals[off][0]:.6g}); pass normalised attention weights"
-        )
-    return arr / totals[:, None]
-
 
 def _nonempty_chunks(bounds: np.ndarray):
     """Indices of the chunks that hold at least one trial."""
     return np.flatnonzero(bounds[1:] > bounds[:-1])
-
-
-def _option_index(option, n_options: int) -> int:
-    if isinstance(option, bool) or not isinstance(option, (numbers.Integral, np.integer)):
-        raise TypeError(f"option must be an integer (got {option!r})")
-    if not 0 <= int(option) < n_options:
-        raise ValueError(f"option must lie in [0, {n_options - 1}] (got {option})")
-    return int(option)
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:

@@ -69,8 +69,9 @@ class WarmupReport:
 def _steps():
     """(label, function) pairs, each a small call that reaches some kernels."""
     from .model import MDFTModel
-    from .simulate import (FixedTime, Threshold, _controlled_trials, _fallback_trials, decide,
-                           simulate)
+    from .decide import decide
+    from .simulate import _controlled_trials, _fallback_trials, simulate
+    from .stopping import FixedTime, Threshold
     from . import _plane_krylov, _threshold_bound
     from .threshold_exact import threshold_probabilities
 

@@ -20,7 +20,8 @@ PACKAGES = ("mdft", "irl", "orchestration")
 #: Modules whose public functions and methods must be fully annotated. A module joins
 #: when its public signatures are complete; none leaves.
 ANNOTATED = {
-    "mdft.model", "mdft.simulate", "mdft.closed_form", "mdft.effects", "mdft.plot",
+    "mdft.model", "mdft.simulate", "mdft.stopping", "mdft.simulation_result", "mdft.decide",
+    "mdft.closed_form", "mdft.effects", "mdft.plot",
     "irl.mdp", "irl.gridworld", "irl.planning", "irl.demonstrations", "irl.io", "irl.metrics",
     "irl.gym", "irl.scobee", "irl.plot",
 }
