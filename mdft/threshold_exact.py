@@ -361,28 +361,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         first_pair = partner_index == 0
         if not half:
             partner, partner_tail, partner_index = result, own_tail, index
-        # the closure's error: the largest of its probes (plane_runs)
-        spread_p, spread_rt = closure["error"]
-        # with the reference term where the reference sums were refitted (a cut pilot)
-        spread_p += closure.get("reference", (0.0, 0.0))[0]
-        spread_rt += closure.get("reference", (0.0, 0.0))[1]
-        # and with the negative choices this pass clipped (the closure's error made visible)
-        spread_p += closure.get("clipped", 0.0)
-        gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
-                                       or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
-        if gross and (spread_p > atol or spread_rt > rt_rtol):
-            # known once measured on a grid finer than the coarsest (or far beyond the
-            # tolerances there): no finer pass can meet the tolerances
-            what = ("the spread of the summed preference and the plane of its reference sums"
-                    if "reference" not in closure else
-                    "the spread of the summed preference and the fit of its reference sums "
-                    "(refitted after the pilot pass's closure ran away)")
-            if closure.get("clipped", 0.0) > 1e-3 * atol:
-                what += (f", with the {closure['clipped']:.2g} of negative choices its "
-                         "closure clipped,")
-            reason = (f"{what} alone may change the probabilities "
-                      f"by {spread_p:.2g} (atol={atol:g}) and the mean response times by "
-                      f"{spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), whatever the resolution")
+        spread_p, spread_rt = _closure_term(closure)
+        bound_reason = _closure_bound(closure, (spread_p, spread_rt), atol, rt_rtol)
+        if bound_reason:
+            reason = bound_reason
             closure_bound = True
             break
         narrow = closure.get("narrow", False)
@@ -393,15 +375,9 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                 break
         if coarse is None:
             continue
-        err_p, err_rt = error_estimate(fine, coarse)
-        if first_pair or half:
-            # the coarsest grid is not yet in the asymptotic range; a half step is a quarter
-            # of a doubling away from its partner
-            factor = _HALF_STEP_FACTOR if half else _FIRST_PAIR_FACTOR
-            err_p, err_rt = factor * err_p, factor * err_rt
-        grid_p, grid_rt = err_p, err_rt
-        err_p += tails[0][0] + tails[1][0]
-        err_rt += tails[0][1] + tails[1][1]
+        grid_p, grid_rt = _grid_term(fine, coarse, first_pair, half)
+        err_p = grid_p + (tails[0][0] + tails[1][0])
+        err_rt = grid_rt + (tails[0][1] + tails[1][1])
         fine = with_errors(fine, err_p + spread_p, err_rt + spread_rt)
         logger.debug("resolution %.3g: estimated error %.2g and %.2g, of which the closure's "
                      "%.2g and %.2g", fine.resolution, err_p + spread_p, err_rt + spread_rt,
@@ -409,16 +385,8 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         if err_p + spread_p <= atol and err_rt + spread_rt <= rt_rtol and not narrow:
             return fine
         if not half:
-            # second order leaves 1 / sqrt(2) of this grid term at the next half step (with
-            # this pass's tail counted for both): run it where that fills at most half the
-            # room the closure leaves; after the first comparison, whose grid term is mostly
-            # the coarsest grid's own error, where that term is within _FIRST_HALF_REACH
-            # times the room
-            room, shrink = ((_FIRST_HALF_REACH, 1.0) if first_pair
-                            else (_HALF_STEP_ROOM, REFINE))
-            try_half = (
-                grid_p / shrink + 2.0 * tails[1][0] <= room * (atol - spread_p)
-                and grid_rt / shrink + 2.0 * tails[1][1] <= room * (rt_rtol - spread_rt))
+            try_half = _half_step_may_answer((grid_p, grid_rt), tails[1], (spread_p, spread_rt),
+                                             (atol, rt_rtol), first_pair)
         if fallback == "simulation" and method == "propagate" and fine.engine == "plane":
             # simulate when that costs less than the next, finer pass (about four times the
             # nonzeros of this one, twice for a half step): a deterministic count, in steps of
@@ -434,24 +402,14 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
                 break
             if _controls_may_pay(fine, sim_work, chain_work, max_steps, probed):
                 why = found + "trials with control variates may cost less than a finer grid"
-                logger.info("threshold_probabilities: %s; probing them", why)
-                try:
-                    return _simulated(model, theta, max_steps, atol, rt_rtol, rng, why,
-                                      max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK,
-                                      probe_work=chain_work / _SIM_STEP_WORK,
-                                      probe_controls=True)
-                except OverBudget:
-                    logger.info("threshold_probabilities: the probe says they cost more; "
-                                "refining")
+                answer = _controlled_if_cheaper(model, theta, max_steps, atol, rt_rtol, rng,
+                                                why, chain_work)
+                if answer is not None:
+                    return answer
         if narrow:
             reason = _narrow(fine)
             continue
-        reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities (atol={atol:g}) "
-                  f"and {err_rt + spread_rt:.2g} relative in the mean response times "
-                  f"(rt_rtol={rt_rtol:g}) at {fine.n_states} states")
-        if spread_p > 0.0 or spread_rt > 0.0:
-            reason += (f", of which the moment closure of the summed preference, which no "
-                       f"resolution lowers, accounts for {spread_p:.2g} and {spread_rt:.2g}")
+        reason = _not_yet(fine, (err_p, err_rt), (spread_p, spread_rt), atol, rt_rtol)
         if fine.engine == "plane" and not half:
             grid_errors.append((err_p, err_rt))
             # the refinements still possible (half steps aside): each has about twice the
@@ -488,6 +446,72 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         f"{max_states}: {reason}. Raise {raise_what}, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"
     )
+
+
+def _closure_term(closure):
+    """The moment closure's error term ``(probabilities, mean times)``: the largest of its
+    probes (:func:`mdft._plane_passes.plane_runs`), plus the reference term where the
+    reference sums were refitted (a cut pilot) and the negative choices the pass clipped (the
+    closure's error made visible). Zero for two options."""
+    spread_p, spread_rt = closure["error"]
+    reference = closure.get("reference", (0.0, 0.0))
+    return spread_p + reference[0] + closure.get("clipped", 0.0), spread_rt + reference[1]
+
+
+def _closure_bound(closure, spread, atol, rt_rtol):
+    """Why no finer pass can meet the tolerances, the closure's term alone being beyond them
+    (known once measured on a grid finer than the coarsest, or far beyond the tolerances
+    there); "" where it leaves room."""
+    spread_p, spread_rt = spread
+    gross = closure["settled"] or (spread_p > _FIRST_PAIR_FACTOR * atol
+                                   or spread_rt > _FIRST_PAIR_FACTOR * rt_rtol)
+    if not gross or (spread_p <= atol and spread_rt <= rt_rtol):
+        return ""
+    what = ("the spread of the summed preference and the plane of its reference sums"
+            if "reference" not in closure else
+            "the spread of the summed preference and the fit of its reference sums "
+            "(refitted after the pilot pass's closure ran away)")
+    if closure.get("clipped", 0.0) > 1e-3 * atol:
+        what += f", with the {closure['clipped']:.2g} of negative choices its closure clipped,"
+    return (f"{what} alone may change the probabilities by {spread_p:.2g} (atol={atol:g}) "
+            f"and the mean response times by {spread_rt:.2g} relative (rt_rtol={rt_rtol:g}), "
+            "whatever the resolution")
+
+
+def _grid_term(fine, coarse, first_pair, half):
+    """The grid's part of the error estimate of ``fine``: its change from ``coarse``, scaled
+    where the first pair is not yet in the asymptotic range and where a half step is a
+    quarter of a doubling away from its partner."""
+    err_p, err_rt = error_estimate(fine, coarse)
+    if first_pair or half:
+        factor = _HALF_STEP_FACTOR if half else _FIRST_PAIR_FACTOR
+        err_p, err_rt = factor * err_p, factor * err_rt
+    return err_p, err_rt
+
+
+def _half_step_may_answer(grid, own_tail, spread, tolerances, first_pair):
+    """Whether the half step after a refinement may meet the tolerances. Second order leaves
+    ``1 / sqrt(2)`` of the refinement's grid term there (with its tail counted for both): run
+    it where that fills at most :data:`_HALF_STEP_ROOM` of the room the closure leaves; after
+    the first comparison, whose grid term is mostly the coarsest grid's own error, where that
+    term is within :data:`_FIRST_HALF_REACH` times the room."""
+    room, shrink = (_FIRST_HALF_REACH, 1.0) if first_pair else (_HALF_STEP_ROOM, REFINE)
+    return all(g / shrink + 2.0 * tail <= room * (tol - sp)
+               for g, tail, sp, tol in zip(grid, own_tail, spread, tolerances))
+
+
+def _not_yet(fine, errors, spread, atol, rt_rtol):
+    """The reason a pass's answer is not yet within the tolerances: its estimate, with the
+    closure's share of it."""
+    err_p, err_rt = errors
+    spread_p, spread_rt = spread
+    reason = (f"estimated error {err_p + spread_p:.2g} in the probabilities (atol={atol:g}) "
+              f"and {err_rt + spread_rt:.2g} relative in the mean response times "
+              f"(rt_rtol={rt_rtol:g}) at {fine.n_states} states")
+    if spread_p > 0.0 or spread_rt > 0.0:
+        reason += (f", of which the moment closure of the summed preference, which no "
+                   f"resolution lowers, accounts for {spread_p:.2g} and {spread_rt:.2g}")
+    return reason
 
 
 def _no_chain(model, theta, resolution):
@@ -577,6 +601,20 @@ def _controls_may_pay(answer, sim_work, chain_work, max_steps, probed):
         return False
     probed.append(True)
     return True
+
+
+def _controlled_if_cheaper(model, theta, max_steps, atol, rt_rtol, rng, why, chain_work):
+    """The simulated answer where a probe of plain and controlled trials finds that they
+    cost at most :data:`_SIM_OVERRUN` times the next pass's ``chain_work``; None where they
+    cost more (the refinement goes on)."""
+    logger.info("threshold_probabilities: %s; probing them", why)
+    try:
+        return _simulated(model, theta, max_steps, atol, rt_rtol, rng, why,
+                          max_work=_SIM_OVERRUN * chain_work / _SIM_STEP_WORK,
+                          probe_work=chain_work / _SIM_STEP_WORK, probe_controls=True)
+    except OverBudget:
+        logger.info("threshold_probabilities: the probe says they cost more; refining")
+        return None
 
 
 def _narrow(result):
