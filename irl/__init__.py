@@ -35,7 +35,8 @@ from .metrics import (
 )
 from .gym import from_gymnasium
 from .demonstrations import Demonstrations, generate_demonstrations, sample_trajectories
-from .mesc import LearnedConstraint, MESCObjective, MESCResult, constraint_probability, mesc_irl
+from .mesc import MESCObjective, mesc_irl
+from .mesc_result import LearnedConstraint, MESCResult, constraint_probability
 from .io import (
     load_demonstrations,
     load_mdp,

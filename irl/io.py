@@ -26,7 +26,7 @@ from .mdp import MDP, TransitionFeatures
 from ._typing import PathLike
 
 if TYPE_CHECKING:
-    from .mesc import MESCResult
+    from .mesc_result import MESCResult
 
 __all__ = [
     "load_paper_worlds",
@@ -182,11 +182,11 @@ def load_paper_demonstrations(*, path: PathLike | None = None) -> list[Demonstra
 
 # ------------------------------------------------------------------ results
 def save_mesc_result(result: MESCResult, path: PathLike) -> None:
-    """Write a :class:`~irl.mesc.MESCResult` to JSON (penalties, names and diagnostics).
+    """Write a :class:`~irl.mesc_result.MESCResult` to JSON (penalties, names and diagnostics).
 
     The MDPs are not written; :func:`load_mesc_result` takes the nominal MDP.
     """
-    from .mesc import MESCResult
+    from .mesc_result import MESCResult
 
     if not isinstance(result, MESCResult):
         raise TypeError(f"result must be a MESCResult (got {type(result).__name__})")
@@ -227,7 +227,7 @@ def load_mesc_result(path: PathLike, nominal: MDP) -> MESCResult:
     >>> bool((back.penalties == res.penalties).all())
     True
     """
-    from .mesc import MESCResult
+    from .mesc_result import MESCResult
 
     doc = _read_json(path, "result", "a valid MESC-IRL result")
     if not isinstance(doc, dict) or doc.get("format") != _RESULT_FORMAT:

@@ -42,7 +42,7 @@ module selects the constraints the demonstrations give evidence for:
    it while the loss is at least ``FAR_LOSS`` (100) times ``cost``: such
    evidence is a looser upper bound, where zeta no longer depends on it
    (``sigmoid(e - cost)`` is 1 to double precision from ``e - cost`` = 37).
-3. **Probability** (in :class:`irl.mesc.MESCResult`).
+3. **Probability** (in :class:`irl.mesc_result.MESCResult`).
    ``sigmoid(e_f - cost)`` is the posterior probability that f belongs to
    the model in the Laplace (BIC-type) approximation of the posterior odds of
    the models with and without f; ``zeta_f`` multiplies it by the paper's
