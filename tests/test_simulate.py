@@ -408,8 +408,10 @@ def test_fixed_time_trajectories(compromise):
     assert not np.isnan(res.trajectories).any()
     np.testing.assert_array_equal(res.trajectories[:, -1].argmax(axis=1), res.trajectory_choices)
     assert res.counts.sum() == 100 and res.choices is None and res.decision_steps is None
-    with pytest.raises(ValueError, match="needs a result of threshold stopping"):
+    with pytest.raises(ValueError, match="response_time_pmf needs a result of threshold stopping"):
         res.response_time_pmf()
+    with pytest.raises(ValueError, match="response_times needs a result of threshold stopping"):
+        res.response_times(0)
 
 
 def test_undecided_trials_are_counted_not_dropped(compromise):
