@@ -60,9 +60,6 @@ MAX_TRAJECTORIES = 1000
 #: Largest number of recorded preference values (n_trajectories x (steps + 1) x n_options).
 _MAX_TRAJECTORY_VALUES = 20_000_000
 
-#: Sentinel of ``choices`` and ``decision_steps`` for an undecided trial.
-UNDECIDED = -1
-
 
 # ---------------------------------------------------------------- simulate
 def simulate(model: MDFTModel, n_samples: int, *, stopping: FixedTime | Threshold,

@@ -15,6 +15,9 @@ from .stopping import FixedTime, Threshold
 
 __all__ = ["SimulationResult"]
 
+#: Sentinel of ``choices`` and ``decision_steps`` for an undecided trial.
+UNDECIDED = -1
+
 
 @dataclass(frozen=True)
 class SimulationResult:
