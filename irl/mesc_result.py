@@ -10,7 +10,7 @@ import numpy as np
 from .mdp import MDP, _as_float, _as_real
 from ._repr import compact_repr, iterations
 
-__all__ = ["MESCResult", "LearnedConstraint", "constraint_probability", "feasible_reward_sd"]
+__all__ = ["MESCResult", "LearnedConstraint", "constraint_probability"]
 
 
 def constraint_probability(penalty, sigma):
