@@ -268,53 +268,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     >>> bool(res.error_probabilities < 1e-3)
     True
     """
-    if not isinstance(model, MDFTModel):
-        raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
+    (theta, max_steps, atol, rt_rtol, tol, max_iter, tail_tol, max_states, n_cells,
+     resolution) = _checked_arguments(model, theta, max_steps, atol, rt_rtol, n_cells,
+                                      resolution, method, tol, tail_tol, max_iter, max_states,
+                                      fallback, rng)
     n = model.n_options
-    theta = as_scalar("theta", theta, low=0.0, low_inclusive=False, high=MAX_THETA)
-    if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
-    max_steps = as_count("max_steps", max_steps, low=1, high=MAX_STEPS)
-    atol = as_scalar("atol", atol, low=0.0, low_inclusive=False, high=0.5)
-    rt_rtol = as_scalar("rt_rtol", rt_rtol, low=0.0, low_inclusive=False, high=0.5)
-    tol = as_scalar("tol", tol, low=0.0, low_inclusive=False, high=0.1)
-    max_iter = as_count("max_iter", max_iter, low=1)
-    tail_tol = as_scalar("tail_tol", tail_tol, low=0.0, high=0.1)
-    max_states = as_count("max_states", max_states, low=10)
-    if fallback not in _FALLBACKS:
-        raise ValueError(f"fallback must be one of {_FALLBACKS} (got {fallback!r})")
-    if rng is not None:
-        as_generator("rng", rng)  # checked here, used only if a simulation answers
-    if n_cells is not None:
-        if n != 2:
-            raise ValueError(
-                f"n_cells sets the two-option lattice (got a model with {n} options); "
-                "for three options set resolution="
-            )
-        n_cells = as_count("n_cells", n_cells, low=4)
-    if resolution is not None:
-        if n != 3:
-            raise ValueError(
-                f"resolution sets the three-option grid (got a model with {n} options); "
-                "for two options set n_cells="
-            )
-        resolution = as_scalar("resolution", resolution, low=0.3, high=2.0)
-    P0 = np.asarray(model.P0)
-    if np.any(P0 >= theta):
-        raise ValueError(
-            f"the initial preference P0 must lie below theta={theta:g} for every option "
-            f"(got P0={P0.tolist()})"
-        )
-    sums = np.asarray(model.S).sum(axis=0)
-    if np.ptp(sums) <= 1e-12 and abs(sums[0]) > 1.0 + 1e-12:
-        # S multiplies the summed preference by sums[0] at every step: it stays at 0 only
-        # in exact arithmetic, and any rounding grows geometrically (as in mdft.simulate)
-        raise ValueError(
-            f"the feedback matrix S multiplies the summed preference 1^T P by {sums[0]:.6g} at "
-            "every step (equal column sums of magnitude above 1), so it is unstable: it stays "
-            "bounded only in exact arithmetic and any rounding grows without bound; lower "
-            "phi2 (mdft.simulate runs such a model, but its choices then follow the rounding)"
-        )
 
     bounded = _undecided_within_tolerances(model, theta, max_steps, atol, rt_rtol, method)
     if bounded is not None:
@@ -388,24 +346,17 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             try_half = _half_step_may_answer((grid_p, grid_rt), tails[1], (spread_p, spread_rt),
                                              (atol, rt_rtol), first_pair)
         if fallback == "simulation" and method == "propagate" and fine.engine == "plane":
-            # simulate when that costs less than the next, finer pass (about four times the
-            # nonzeros of this one, twice for a half step): a deterministic count, in steps of
-            # one nonzero
+            # the next pass has about four times the nonzeros of this one, twice for a half
+            # step
             ratio = HALF_STEP if half or try_half else REFINE
-            chain_work = ratio**4 * closure["nonzeros"] * (_BUILD_WORK + fine.n_iter)
-            sim_work = _simulation_work(fine, max_steps, atol, rt_rtol)
-            found = (f"estimated error {err_p + spread_p:.2g} in the probabilities and "
-                     f"{err_rt + spread_rt:.2g} relative in the mean response times at "
-                     f"{fine.n_states} states, where ")
-            if sim_work < chain_work:
-                reason = found + "simulating costs less than a finer grid"
+            answer, handed = _simulated_if_finer_costs_more(
+                fine, ratio**4 * closure["nonzeros"], probed, model=model, theta=theta,
+                max_steps=max_steps, atol=atol, rt_rtol=rt_rtol, rng=rng)
+            if answer is not None:
+                return answer
+            if handed:
+                reason = handed
                 break
-            if _controls_may_pay(fine, sim_work, chain_work, max_steps, probed):
-                why = found + "trials with control variates may cost less than a finer grid"
-                answer = _controlled_if_cheaper(model, theta, max_steps, atol, rt_rtol, rng,
-                                                why, chain_work)
-                if answer is not None:
-                    return answer
         if narrow:
             reason = _narrow(fine)
             continue
@@ -420,6 +371,74 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
             if hopeless:
                 reason += hopeless
                 break
+    return _after_refusal(model, theta, max_steps, atol, rt_rtol, rng, fallback, method,
+                          max_states, runs, fine, reason, closure_bound)
+
+
+def _checked_arguments(model, theta, max_steps, atol, rt_rtol, n_cells, resolution, method,
+                       tol, tail_tol, max_iter, max_states, fallback, rng):
+    """The arguments of :func:`threshold_probabilities`, checked, and those it uses as
+    numbers converted: ``(theta, max_steps, atol, rt_rtol, tol, max_iter, tail_tol,
+    max_states, n_cells, resolution)``. Also checks that ``P0`` lies below ``theta`` and
+    that the summed preference is not unstable under ``S``."""
+    if not isinstance(model, MDFTModel):
+        raise TypeError(f"model must be an MDFTModel (got {type(model).__name__})")
+    n = model.n_options
+    theta = as_scalar("theta", theta, low=0.0, low_inclusive=False, high=MAX_THETA)
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {_METHODS} (got {method!r})")
+    max_steps = as_count("max_steps", max_steps, low=1, high=MAX_STEPS)
+    atol = as_scalar("atol", atol, low=0.0, low_inclusive=False, high=0.5)
+    rt_rtol = as_scalar("rt_rtol", rt_rtol, low=0.0, low_inclusive=False, high=0.5)
+    tol = as_scalar("tol", tol, low=0.0, low_inclusive=False, high=0.1)
+    max_iter = as_count("max_iter", max_iter, low=1)
+    tail_tol = as_scalar("tail_tol", tail_tol, low=0.0, high=0.1)
+    max_states = as_count("max_states", max_states, low=10)
+    if fallback not in _FALLBACKS:
+        raise ValueError(f"fallback must be one of {_FALLBACKS} (got {fallback!r})")
+    if rng is not None:
+        as_generator("rng", rng)  # checked here, used only if a simulation answers
+    if n_cells is not None:
+        if n != 2:
+            raise ValueError(
+                f"n_cells sets the two-option lattice (got a model with {n} options); "
+                "for three options set resolution="
+            )
+        n_cells = as_count("n_cells", n_cells, low=4)
+    if resolution is not None:
+        if n != 3:
+            raise ValueError(
+                f"resolution sets the three-option grid (got a model with {n} options); "
+                "for two options set n_cells="
+            )
+        resolution = as_scalar("resolution", resolution, low=0.3, high=2.0)
+    P0 = np.asarray(model.P0)
+    if np.any(P0 >= theta):
+        raise ValueError(
+            f"the initial preference P0 must lie below theta={theta:g} for every option "
+            f"(got P0={P0.tolist()})"
+        )
+    sums = np.asarray(model.S).sum(axis=0)
+    if np.ptp(sums) <= 1e-12 and abs(sums[0]) > 1.0 + 1e-12:
+        # S multiplies the summed preference by sums[0] at every step: it stays at 0 only
+        # in exact arithmetic, and any rounding grows geometrically (as in mdft.simulate)
+        raise ValueError(
+            f"the feedback matrix S multiplies the summed preference 1^T P by {sums[0]:.6g} at "
+            "every step (equal column sums of magnitude above 1), so it is unstable: it stays "
+            "bounded only in exact arithmetic and any rounding grows without bound; lower "
+            "phi2 (mdft.simulate runs such a model, but its choices then follow the rounding)"
+        )
+    return (theta, max_steps, atol, rt_rtol, tol, max_iter, tail_tol, max_states, n_cells,
+            resolution)
+
+
+def _after_refusal(model, theta, max_steps, atol, rt_rtol, rng, fallback, method,
+                   max_states, runs, fine, reason, closure_bound):
+    """What :func:`threshold_probabilities` does once the chain has not answered (``runs``
+    its passes, empty where no chain could be built; ``fine`` the last answer, or None;
+    ``reason`` why): the simulated answer with the default fallback, or a ValueError
+    saying why (``closure_bound``: refused for the closure's term, which more states
+    cannot lower)."""
     if fallback == "simulation" and method == "propagate":
         if runs:
             reason = f"within max_states={max_states}: {reason}"
@@ -680,6 +699,26 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
                     "building the chain")
         return None
 
+
+def _simulated_if_finer_costs_more(fine, next_nonzeros, probed, *, model, theta, max_steps,
+                                   atol, rt_rtol, rng):
+    """Whether to simulate instead of building the next, finer pass (``next_nonzeros``, about):
+    a deterministic count of work in steps of one nonzero, from the errors and the answer of
+    ``fine``. Returns ``(answer, reason)``: the answer of trials with control variates where
+    a probe (once per call: ``probed``) finds them cheaper; else ``reason`` (the hand-over's,
+    for the fallback) where plain trials cost less; else ``(None, None)``: refine."""
+    chain_work = next_nonzeros * (_BUILD_WORK + fine.n_iter)
+    sim_work = _simulation_work(fine, max_steps, atol, rt_rtol)
+    found = (f"estimated error {fine.error_probabilities:.2g} in the probabilities and "
+             f"{fine.error_mean_rt:.2g} relative in the mean response times at "
+             f"{fine.n_states} states, where ")
+    if sim_work < chain_work:
+        return None, found + "simulating costs less than a finer grid"
+    if _controls_may_pay(fine, sim_work, chain_work, max_steps, probed):
+        why = found + "trials with control variates may cost less than a finer grid"
+        return _controlled_if_cheaper(model, theta, max_steps, atol, rt_rtol, rng, why,
+                                      chain_work), None
+    return None, None
 
 def _simulation_work(answer, max_steps, atol, rt_rtol):
     """Work of simulating to the tolerances, predicted from ``answer``, in units of
