@@ -702,11 +702,12 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
 
 def _simulated_if_finer_costs_more(fine, next_nonzeros, probed, *, model, theta, max_steps,
                                    atol, rt_rtol, rng):
-    """Whether to simulate instead of building the next, finer pass (``next_nonzeros``, about):
-    a deterministic count of work in steps of one nonzero, from the errors and the answer of
-    ``fine``. Returns ``(answer, reason)``: the answer of trials with control variates where
-    a probe (once per call: ``probed``) finds them cheaper; else ``reason`` (the hand-over's,
-    for the fallback) where plain trials cost less; else ``(None, None)``: refine."""
+    """Whether to simulate instead of building the next, finer pass (about ``next_nonzeros``
+    nonzeros): a deterministic count of work, in steps of one nonzero, from the answer and
+    errors of ``fine``. Returns ``(answer, reason)``: the answer of trials with control
+    variates where a probe (once per call: ``probed``) finds them cheaper; else ``(None,
+    reason)`` where plain trials cost less (the reason the fallback is told); else ``(None,
+    None)``: refine."""
     chain_work = next_nonzeros * (_BUILD_WORK + fine.n_iter)
     sim_work = _simulation_work(fine, max_steps, atol, rt_rtol)
     found = (f"estimated error {fine.error_probabilities:.2g} in the probabilities and "
@@ -719,6 +720,7 @@ def _simulated_if_finer_costs_more(fine, next_nonzeros, probed, *, model, theta,
         return _controlled_if_cheaper(model, theta, max_steps, atol, rt_rtol, rng, why,
                                       chain_work), None
     return None, None
+
 
 def _simulation_work(answer, max_steps, atol, rt_rtol):
     """Work of simulating to the tolerances, predicted from ``answer``, in units of
