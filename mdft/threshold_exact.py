@@ -702,9 +702,9 @@ def _simulated_if_cheaper(answer, nonzeros, steps, *, model, theta, max_steps, a
 
 def _simulated_if_finer_costs_more(fine, next_nonzeros, probed, *, model, theta, max_steps,
                                    atol, rt_rtol, rng):
-    """Whether to simulate instead of building the next, finer pass (about ``next_nonzeros``
-    nonzeros): a deterministic count of work, in steps of one nonzero, from the answer and
-    errors of ``fine``. Returns ``(answer, reason)``: the answer of trials with control
+    """Simulate instead of building the next, finer pass (about ``next_nonzeros`` nonzeros)
+    where that costs less: a deterministic count of work, in steps of one nonzero, from the
+    answer and errors of ``fine``. Returns ``(answer, reason)``: the answer of trials with control
     variates where a probe (once per call: ``probed``) finds them cheaper; else ``(None,
     reason)`` where plain trials cost less (the reason the fallback is told); else ``(None,
     None)``: refine."""
