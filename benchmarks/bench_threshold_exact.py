@@ -17,6 +17,7 @@ targets (the median, the calls of at most 0.2 s and of more than 2 s, the larges
     python benchmarks/bench_threshold_exact.py --ranges flat --fallback simulation --binary 0
     python benchmarks/bench_threshold_exact.py --ternary 40 --binary 0 --trials 0 --seed 8383
     python benchmarks/bench_threshold_exact.py --canonical --ternary 0 --binary 0 --max-steps 10000
+    python benchmarks/bench_threshold_exact.py --edge-correction --fallback simulation --binary 0
 
 ``--canonical`` adds the three context-effect option sets of ``mdft.effects``
 (similarity, attraction, compromise) at the canonical parameters (``w = (.5, .5)``,
@@ -155,12 +156,14 @@ def reference(model, theta, trials, max_steps, seed, cache):
     return ref
 
 
-def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise"):
+def compare(model, theta, trials, max_steps, seed, cache=None, fallback="raise", edge=False):
     """The call's answer against the simulated reference; with ``trials=0``, the answer
-    alone, timed as the shorter of two calls (calls over a second once)."""
+    alone, timed as the shorter of two calls (calls over a second once). ``edge``: the
+    three-option calls with ``edge_correction=True``."""
     def call():
         start = time.perf_counter()
-        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback)
+        res = mdft.threshold_probabilities(model, theta, max_steps=max_steps, fallback=fallback,
+                                           edge_correction=edge and model.n_options == 3)
         return res, time.perf_counter() - start
 
     start = time.perf_counter()
@@ -209,7 +212,7 @@ def run_set(label, models, n_options, args):
           "p (chain) / p (simulation)")
     for k, (model, theta, seed) in enumerate(models):
         out, seconds, why = compare(model, theta, args.trials, args.max_steps, seed,
-                                    args.cache, args.fallback)
+                                    args.cache, args.fallback, args.edge_correction)
         if out is None:
             refused.append((k, theta, model.sigma2, seconds, why))
             print(f"{k:>3} {theta:6.1f} {model.sigma2:6.2f}   refused after {seconds:.2f} s: "
@@ -284,6 +287,9 @@ def main(argv=None):
     parser.add_argument("--fallback", choices=("raise", "simulation"), default="raise",
                         help="threshold_probabilities' fallback= (default 'raise': the chain "
                              "alone; 'simulation': the library's default)")
+    parser.add_argument("--edge-correction", action="store_true",
+                        help="three options: threshold_probabilities(..., "
+                             "edge_correction=True)")
     parser.add_argument("--cache", default=None,
                         help="directory that stores the simulated references")
     parser.add_argument("--ranges", choices=RANGES, default="standard",

@@ -196,7 +196,8 @@ def _build_parts(box):
     return int(max(1, min(numba.get_num_threads(), 8, _PART_WORK_CELLS // (3 * box))))
 
 
-def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, ref_map=None):
+def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, ref_map=None,
+                       edge=False):
     """The moment chain at resolution ``kappa`` with reference sums ``ref`` (see
     :func:`mdft._plane_moment.build`) and spread ``delta``.
 
@@ -205,7 +206,8 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, r
     frontier states (:class:`MomentChain`). None: every state reached gets its row.
     ``ref_map``: :func:`mean_sums` of a pass (the closure's plane probe passes this grid's
     own), whose cells' mean sums replace the plane ``ref`` as the reference sums of the
-    cells they cover (None: the plane everywhere).
+    cells they cover (None: the plane everywhere). ``edge``: add the edge terms to the rows
+    (:mod:`mdft._plane_boundary`).
 
     Raises TooManyStates when the reachable states exceed ``max_states`` or a
     step lands outside every cell.
@@ -233,7 +235,7 @@ def build_moment_chain(model, theta, kappa, ref, delta, max_states, near=None, r
         g["n2"], g["sd_opt"], g["pair_sd"], g["pair_rho"], np.asarray(ref, dtype=np.float64),
         g["s_lo"], g["s_hi"], float(delta), max_states, _build_parts(box), _FIRST_SLOT,
         allowed, np.ascontiguousarray(cells_map, dtype=np.float64),
-        tuple(float(v) for v in map_grid),
+        tuple(float(v) for v in map_grid), bool(edge),
     )
     (status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
      start_abs, start_snext, frontier) = out

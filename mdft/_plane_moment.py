@@ -12,7 +12,8 @@ spread ``delta`` of the sum within the state. The region ``{P_i < theta}`` moves
 with the sum, so each of the two evaluations places a cut cell's mass at the
 centroid of the part of the cell inside the region at that sum (the cell's
 centre once it lies wholly inside); the state's own position is that centroid
-at its reference sum.
+at its reference sum. With ``edge``, every row also carries the edge terms of
+:mod:`mdft._plane_boundary`.
 
 The build runs on numba's threads: it evaluates the sources it has
 discovered, a block at a time, in parallel parts and adds their rows in
@@ -29,6 +30,7 @@ import numpy as np
 from numba import prange
 
 from ._numba import njit, njit_parallel
+from ._plane_boundary import add_edge_terms
 from ._plane import (absorb3, classify, cut_mass_with, centroid, interval_mass, phi_cdf,
                      _CUT)
 
@@ -43,6 +45,9 @@ LOST_MASS = 2
 # stays: its share of what stays is then more, but the tail is left out all the same; 5.7
 # instead changed answers by 2e-10 on 43 random models).
 _REACH = 5.2
+# A component's edge terms are left out where the weight they move exceeds this share of
+# its staying mass.
+_EDGE_SHARE = 0.5
 # The build evaluates at most this many discovered sources at a time (in parallel parts).
 _BLOCK_SOURCES = 256
 
@@ -50,7 +55,7 @@ _BLOCK_SOURCES = 256
 @njit
 def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, scratch, tmp, marg1, marg2, ends, absorbed,
-         box):
+         box, edge):
     """One source at ``(z, s)``: choices into ``absorbed``, staying mass added to ``scratch``
     (its bounding box in ``box``); returns ``(s_next, lost)``.
 
@@ -59,7 +64,8 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
     ``reach[i]``, the half-extent of a cell along line ``i`` (:func:`mdft._plane.classify`),
     ``sd_cell``, ``sd_exact``, ``sd_opt``, ``pair_sd`` and ``pair_rho``. ``tmp`` is zero on
     entry and on return; ``marg1`` (3, n1), ``marg2`` (3, n2) and ``ends`` are work space
-    (:func:`_margins`, :func:`mdft._plane.cut_mass_with`)."""
+    (:func:`_margins`, :func:`mdft._plane.cut_mass_with`). ``edge``: add each narrowed
+    component's edge terms (:func:`mdft._plane_boundary.add_edge_terms`)."""
     J = w.shape[0]
     P0 = ex[0] * z1 + ey[0] * z2 + s / 3.0
     P1 = ex[1] * z1 + ey[1] * z2 + s / 3.0
@@ -72,6 +78,10 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
     zm2 = ey[0] * m0 + ey[1] * m1 + ey[2] * m2
     bound = theta - s_next / 3.0
     lost = False
+    # work space of the edge terms: a clipped cell's polygon, the cut cells of a component
+    # (a threshold line crosses at most n1 + n2 + 1 cells)
+    poly = np.empty((4, 8))
+    cuts = np.empty((3 * (n1 + n2) + 8 if edge else 1, 2), dtype=np.int64)
     for i in range(3):
         absorbed[i] = 0.0
     for j in range(J):
@@ -93,6 +103,8 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
         hi1 = -1
         lo2 = n2
         hi2 = -1
+        narrowed = True
+        n_cut = 0
         for attempt in range(2):
             if attempt == 0:
                 mu1 = zm1 + shrunk[0, j]
@@ -107,6 +119,7 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
                 hi1 = -1
                 lo2 = n2
                 hi2 = -1
+                narrowed = False
                 mu1 = zm1 + exact[0, j]
                 mu2 = zm2 + exact[1, j]
                 sd1 = sd_exact[0]
@@ -118,6 +131,7 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
             w_lo2 = max(int(math.floor((mu2 - _REACH * sd2 - o2) / h2 + 0.5)), 0)
             w_hi2 = min(int(math.floor((mu2 + _REACH * sd2 - o2) / h2 + 0.5)), n2 - 1)
             inside = 0.0
+            n_cut = 0
             _margins(w_lo1, w_hi1, o1, h1, mu1, sd1, marg1)
             p2max = _margins(w_lo2, w_hi2, o2, h2, mu2, sd2, marg2)
             for a in range(w_lo1, w_hi1 + 1):
@@ -147,6 +161,10 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
                                           marg2[1, b], marg2[2, b], ends)
                         if v < cut:
                             continue
+                        if edge:
+                            cuts[n_cut, 0] = a
+                            cuts[n_cut, 1] = b
+                            n_cut += 1
                     tmp[a, b] = v
                     inside += v
                     if a < lo1:
@@ -166,7 +184,18 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
             else:
                 lost = True
             continue
-        scale = w[j] * stay / inside
+        # the edge terms (mdft._plane_boundary), unless the Gaussian was not narrowed, or
+        # they come to a large share of what stays (a step that mostly ends, its density
+        # steep across the cells at the edge: the expansion behind them does not hold)
+        moved = 0.0
+        if edge and narrowed:
+            moved = add_edge_terms(cuts, n_cut, o1, o2, h1, h2, n1, n2, ex, ey, reach, bound,
+                                  mu1, mu2, sd1, sd2, w[j], scratch, box, poly)
+            if abs(moved) > _EDGE_SHARE * stay:
+                add_edge_terms(cuts, n_cut, o1, o2, h1, h2, n1, n2, ex, ey, reach, bound,
+                               mu1, mu2, sd1, sd2, -w[j], scratch, box, poly)
+                moved = 0.0
+        scale = w[j] * (stay - moved) / inside
         for a in range(lo1, hi1 + 1):
             for b in range(lo2, hi2 + 1):
                 scratch[a, b] += scale * tmp[a, b]
@@ -281,7 +310,7 @@ def _compact(sA, sB, box, cell, vals_a, vals_b, k0, cap):
 
 @njit
 def _source(z1, z2, s_mid, d, St, ex, ey, reach, CM, w, shrunk, sdc, exact, sde, theta, o1, o2,
-            h1, h2, n1, n2, sdo, psd, prho, sA, sB, tmp, marg1, marg2, ends, aA, aB, box):
+            h1, h2, n1, n2, sdo, psd, prho, sA, sB, tmp, marg1, marg2, ends, aA, aB, box, edge):
     """Both evaluations of one source (at ``s_mid - d`` and ``s_mid + d``; one when ``d``
     is 0) into ``sA``, ``sB``, ``aA``, ``aB`` and ``box``; returns ``(snA, snB, lost)``."""
     box[0] = n1
@@ -290,11 +319,11 @@ def _source(z1, z2, s_mid, d, St, ex, ey, reach, CM, w, shrunk, sdc, exact, sde,
     box[3] = -1
     snA, lostA = _row(z1[0], z2[0], s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
                       sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
-                      marg2, ends, aA, box)
+                      marg2, ends, aA, box, edge)
     if d > 0.0:
         snB, lostB = _row(z1[1], z2[1], s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc,
                           exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
-                          marg1, marg2, ends, aB, box)
+                          marg1, marg2, ends, aB, box, edge)
     else:
         snB = snA
         lostB = lostA
@@ -332,7 +361,7 @@ def _small(S, E, h1, h2, sd_cell, sd_exact, sd_opt, pair_sd, pair_rho):
 @njit
 def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta,
                      o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
-                     boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost):
+                     boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost, edge):
     """The sources ``part, part + n_parts, ...`` of a block (see
     :func:`_sources_in_parts`), with the work space of that part."""
     n_parts = work.shape[0]
@@ -348,7 +377,7 @@ def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd
         snA, snB, lst = _source(
             (zs[i, 0], zs[i, 1]), (zs[i, 2], zs[i, 3]), s_mid[i], d[i], St, ex, ey, reach,
             CM, w, shrunk, sdc, exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho,
-            sA, sB, tmp, marg1, marg2, ends[part], absorbed[i, 0], absorbed[i, 1], box)
+            sA, sB, tmp, marg1, marg2, ends[part], absorbed[i, 0], absorbed[i, 1], box, edge)
         s_next[i, 0] = snA
         s_next[i, 1] = snB
         lost[i] = lst
@@ -358,7 +387,7 @@ def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd
 @njit_parallel
 def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1,
                       o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends, boxes,
-                      cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost):
+                      cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost, edge):
     """Both evaluations of each source of a block (``zs[i] = (z1A, z1B, z2A, z2B)``),
     sources dealt in turn to ``work.shape[0]`` parts on numba's threads, each part with its
     own work space. Source ``i``'s cells go to ``cell``, ``vals_a``, ``vals_b`` from
@@ -371,7 +400,7 @@ def _sources_in_parts(zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exac
         _sources_of_part(np.int64(part), zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact,
                          sd_exact, theta, o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho,
                          work, margs, ends, boxes, cap, cell, vals_a, vals_b, counts, absorbed,
-                         s_next, lost)
+                         s_next, lost, edge)
 
 
 @njit
@@ -398,7 +427,7 @@ def mark_near(allowed, pts, o1, o2, h1, h2, r1, r2):
 @njit
 def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
           h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, ref, s_lo, s_hi, delta, max_states,
-          n_parts, first_slot, allowed, ref_map, map_grid):
+          n_parts, first_slot, allowed, ref_map, map_grid, edge):
     """Discover the reachable cells from the exact start and build the moment chain.
 
     ``ref = (r0, r1, r2)``: the reference sum of the cell at ``z`` is
@@ -414,7 +443,8 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
     first, widened as wider sources are met (a source that does not fit is
     evaluated again alone). ``allowed`` (``n1 x n2``, or empty for every cell): the cells
     whose rows are evaluated; a state discovered in another cell is a *frontier* state, with
-    an empty row (its mass leaves the chain, and :func:`propagate` counts it). Returns
+    an empty row (its mass leaves the chain, and :func:`propagate` counts it). ``edge``:
+    the rows carry the edge terms (:mod:`mdft._plane_boundary`). Returns
     ``(status, pos, sref, snext, row_ptr, cols, t0, t1, r0, r1, start_cols, start_vals,
     start_abs, start_snext, frontier)``.
     """
@@ -503,7 +533,8 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
         lost = np.zeros(n_blk, dtype=np.bool_)
         _sources_in_parts(zs, s_mid, dd, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta,
                           o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
-                          boxes, slot, blk_cell, blk_a, blk_b, counts, absorbed, s_next, lost)
+                          boxes, slot, blk_cell, blk_a, blk_b, counts, absorbed, s_next, lost,
+                          edge)
         widest = 0
         i = -1
         for q in range(r, r_end):
@@ -530,7 +561,7 @@ def build(z_start, s_start, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta
                                   sd_cell, exact, sd_exact, theta, o1, o2, h1, h2, n1, n2,
                                   sd_opt, pair_sd, pair_rho, work[:1], margs[:1], ends[:1],
                                   boxes[:1], n_new, cell, va, vb, counts[i:i + 1],
-                                  absorbed[i:i + 1], s_next[i:i + 1], lost[i:i + 1])
+                                  absorbed[i:i + 1], s_next[i:i + 1], lost[i:i + 1], edge)
             widest = max(widest, n_new)
             row_start = n_vals
             # room for the row's nonzeros and new states before the loop over its cells:

@@ -87,7 +87,8 @@ def narrow_everywhere(model, theta, kappa):
             "not trusted")
 
 
-def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, cheaper=None):
+def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, cheaper=None,
+               edge=False):
     """Computations of increasing resolution for three options (the moment chain).
 
     Before the first, two pilot passes at the coarsest resolution (the first
@@ -104,7 +105,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     cut), the nonzeros that the first pass that counts, its probes and the next pass (and
     after a cut pilot, two refits) are expected to build (each refinement by ``REFINE`` four
     times the nonzeros of the grid before), and the pilot's steps; what it returns other
-    than None (a simulated answer) is the first run's result.
+    than None (a simulated answer) is the first run's result. ``edge``: every chain's rows
+    carry the edge terms (:mod:`mdft._plane_boundary`).
     """
     # the coarsest, the first, then refinements by sqrt(2) with a half step before each (the
     # odd powers of HALF_STEP)
@@ -122,7 +124,8 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     def fitting_pass(k, steps, tol):
         # a pass carrying the occupation of the sum's moments, with every row, at the current
         # reference sums: (chain, answer, cut)
-        chain = build_moment_chain(model, theta, k, state["ref"], state["delta"], max_states)
+        chain = build_moment_chain(model, theta, k, state["ref"], state["delta"], max_states,
+                                   edge=edge)
         out, cut = pilot_pass(chain, steps, tol, budget, floor=RT_WEIGHT_FLOOR)
         return chain, out, cut
 
@@ -180,7 +183,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             near_nonzeros = None
             for near in (None if state["every_row"] else state["near"], None):
                 chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                           near, ref_map)
+                                           near, ref_map, edge)
                 out = propagate_moments(chain, steps, solve["tol"], budget,
                                         floor=RT_WEIGHT_FLOOR,
                                         krylov_from=state["krylov_from"],
@@ -204,7 +207,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             state["krylov_from"] = tail_start if tail_start < steps else None
         else:
             chain = build_moment_chain(model, theta, k, state["ref"], delta, max_states,
-                                       ref_map=ref_map)
+                                       ref_map=ref_map, edge=edge)
         closure["narrow"] = chain.narrow
         closure["nonzeros"] = chain.cols.shape[0]
         common = dict(theta=theta, n_cells=int(math.ceil(theta / min(chain.h))),
@@ -253,7 +256,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             # a pass that counts, with every row (the Krylov tail too: a refit needs the
             # occupation of x and m only, not the second moment that pilots carry)
             chain = build_moment_chain(model, theta, k, state["ref"], state["delta"],
-                                       max_states)
+                                       max_states, edge=edge)
             out = propagate_moments(chain, solve["max_steps"], solve["tol"], budget,
                                     floor=RT_WEIGHT_FLOOR, early=state["early"])
             # a closure that runs away: the choices and undecided mass turned negative by

@@ -669,9 +669,9 @@ def test_pilot_passes_run_one_step_coarser_than_the_counted_passes(monkeypatch):
     built = []
     original = _plane_passes.build_moment_chain
 
-    def recording(model, theta, kappa, *args):
+    def recording(model, theta, kappa, *args, **kwargs):
         built.append(kappa)
-        return original(model, theta, kappa, *args)
+        return original(model, theta, kappa, *args, **kwargs)
 
     monkeypatch.setattr(_plane_passes, "build_moment_chain", recording)
     model = MDFTModel([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]], [0.5, 0.5], phi1=0.022, phi2=0.05,
