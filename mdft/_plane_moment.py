@@ -80,7 +80,7 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
     lost = False
     # work space of the edge terms: a clipped cell's polygon, the cut cells of a component
     # (a threshold line crosses at most n1 + n2 + 1 cells)
-    poly = np.empty((4, 8))
+    poly = np.empty((4, 8 if edge else 1))
     cuts = np.empty((3 * (n1 + n2) + 8 if edge else 1, 2), dtype=np.int64)
     for i in range(3):
         absorbed[i] = 0.0
