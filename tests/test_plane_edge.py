@@ -60,80 +60,93 @@ def _quadratic(c, x, y):
     return c[0] + c[1] * x + c[2] * y + c[3] * x * x + 2 * c[4] * x * y + c[5] * y * y
 
 
-def _exact_mean(mu, alpha, bound, c):
-    """``E[V(Z) 1{n . Z < bound}]`` for ``Z ~ N(mu, I)``, ``n`` at angle ``alpha``: in
-    the coordinates ``u`` along ``n`` and ``v`` along the line, ``u`` truncated above."""
+def _exact_mean(mu, sd, alpha, bound, c):
+    """``E[V(Z) 1{n . Z < bound}]`` for ``Z ~ N(mu, diag(sd)^2)``, ``n`` at angle ``alpha``:
+    with ``Z = mu + diag(sd) U``, in the coordinates of ``U`` across the line (truncated above)
+    and along it."""
     n = np.array([math.cos(alpha), math.sin(alpha)])
-    t = np.array([-n[1], n[0]])
-    d = bound - n @ mu
+    D = np.diag(sd)
+    g = D @ n
+    m = g / np.linalg.norm(g)
+    t = np.array([-m[1], m[0]])
+    d = (bound - n @ mu) / np.linalg.norm(g)
     m0, m1, m2 = norm.cdf(d), -norm.pdf(d), norm.cdf(d) - d * norm.pdf(d)
     lin = np.array([c[1], c[2]])
     quad = np.array([[c[3], c[4]], [c[4], c[5]]])
-    return ((c[0] + lin @ mu + mu @ quad @ mu) * m0 + (lin @ n + 2 * mu @ quad @ n) * m1
-            + (n @ quad @ n) * m2 + (t @ quad @ t) * m0)
+    lin_u = D @ (lin + 2 * quad @ mu)
+    quad_u = D @ quad @ D
+    return (_quadratic(c, mu[0], mu[1]) * m0 + (lin_u @ m) * m1 + (m @ quad_u @ m) * m2
+            + (t @ quad_u @ t) * m0)
 
 
-def _row_mean(mu, alpha, bound, h, offset, c, edge):
-    """The same mean over one row of the chain: cells ``h x h`` (origin ``offset``), the
-    Gaussian narrowed by ``h^2 / 12`` per axis, cut cells at the centroids of their inside
-    parts, the row scaled to the exact probability of staying; with ``edge``, the edge
-    terms added. Also returns the weight that the terms added in all, less the mass they
-    took from the row (zero)."""
+def _row_mean(mu, sd, alpha, bound, r, offset, c, edge):
+    """The same mean over one row of the chain: cells of ``r`` standard deviations along each
+    axis (origin ``offset``), the Gaussian narrowed by ``h_k^2 / 12`` along axis ``k``, cut
+    cells at the centroids of their inside parts, the row scaled to the exact probability of
+    staying; with ``edge``, the edge terms added. Also returns the weight that the terms
+    added in all, less the mass they took from the row (zero)."""
     ex, ey, b = _lines(alpha, bound)
-    s = math.sqrt(1.0 - h * h / 12.0)
-    n_cells = int(math.ceil(30.0 / h))
-    o1 = offset[0] - (n_cells // 2) * h
-    o2 = offset[1] - (n_cells // 2) * h
-    reach = tuple(0.5 * (abs(ex[i]) + abs(ey[i])) * h for i in range(3))
-    centres1 = o1 + h * np.arange(n_cells)
-    centres2 = o2 + h * np.arange(n_cells)
+    h1, h2 = r * sd[0], r * sd[1]
+    s1, s2 = math.sqrt(sd[0] ** 2 - h1 * h1 / 12.0), math.sqrt(sd[1] ** 2 - h2 * h2 / 12.0)
+    n_cells = int(math.ceil(30.0 / r))
+    o1 = offset[0] * h1 - (n_cells // 2) * h1
+    o2 = offset[1] * h2 - (n_cells // 2) * h2
+    reach = tuple(0.5 * (abs(ex[i]) * h1 + abs(ey[i]) * h2) for i in range(3))
+    centres1 = o1 + h1 * np.arange(n_cells)
+    centres2 = o2 + h2 * np.arange(n_cells)
     C1, C2 = np.meshgrid(centres1, centres2, indexing="ij")
     T = [ex[i] * C1 + ey[i] * C2 for i in range(3)]
     outside = np.any([T[i] - reach[i] >= b for i in range(3)], axis=0)
     cut = ~outside & np.any([T[i] + reach[i] >= b for i in range(3)], axis=0)
-    m1 = norm.cdf((centres1 + h / 2 - mu[0]) / s) - norm.cdf((centres1 - h / 2 - mu[0]) / s)
-    m2 = norm.cdf((centres2 + h / 2 - mu[1]) / s) - norm.cdf((centres2 - h / 2 - mu[1]) / s)
+    m1 = norm.cdf((centres1 + h1 / 2 - mu[0]) / s1) - norm.cdf((centres1 - h1 / 2 - mu[0]) / s1)
+    m2 = norm.cdf((centres2 + h2 / 2 - mu[1]) / s2) - norm.cdf((centres2 - h2 / 2 - mu[1]) / s2)
     mass = np.where(outside, 0.0, np.outer(m1, m2))
     P1, P2 = C1.copy(), C2.copy()
     poly = np.empty((4, 8))
     cuts = []
     for a, bb in zip(*np.nonzero(cut)):
-        mass[a, bb] = _plane.cut_mass(C1[a, bb] - h / 2, C1[a, bb] + h / 2, C2[a, bb] - h / 2,
-                                      C2[a, bb] + h / 2, mu[0], s, mu[1], s, ex, ey, b)
+        mass[a, bb] = _plane.cut_mass(C1[a, bb] - h1 / 2, C1[a, bb] + h1 / 2, C2[a, bb] - h2 / 2,
+                                      C2[a, bb] + h2 / 2, mu[0], s1, mu[1], s2, ex, ey, b)
         P1[a, bb], P2[a, bb], area = _plane_boundary.inside_centroid(
-            C1[a, bb], C2[a, bb], h, h, ex, ey, b, poly)
+            C1[a, bb], C2[a, bb], h1, h2, ex, ey, b, poly)
         if mass[a, bb] > 0.0:
             cuts.append((a, bb))
-    stay = norm.cdf(bound - (math.cos(alpha) * mu[0] + math.sin(alpha) * mu[1]))
+    n = np.array([math.cos(alpha), math.sin(alpha)])
+    stay = norm.cdf((bound - n @ mu) / np.linalg.norm(np.asarray(sd) * n))
     row = mass / mass.sum() * stay
     if not edge:
         return float((row * _quadratic(c, P1, P2)).sum()), 0.0
     scratch = np.zeros_like(row)
     box = np.array([n_cells, -1, n_cells, -1])
     cuts = np.array(cuts, dtype=np.int64).reshape(-1, 2)
-    moved = _plane_boundary.add_edge_terms(cuts, cuts.shape[0], o1, o2, h, h, n_cells, n_cells,
-                                           ex, ey, reach, b, mu[0], mu[1], s, s, 1.0, scratch,
-                                           box, poly)
+    moved = _plane_boundary.add_edge_terms(cuts, cuts.shape[0], o1, o2, h1, h2, n_cells,
+                                           n_cells, ex, ey, reach, b, mu[0], mu[1], s1, s2,
+                                           1.0, scratch, box, poly)
     row = row * (stay - moved) / stay + scratch
     return float((row * _quadratic(c, P1, P2)).sum()), float(scratch.sum() - moved)
 
 
-def _misses(seed, hs):
+def _misses(seed, rs):
     """A random step near a random line and a random quadratic ``V``: the row's miss of the
-    exact mean at each cell size, without and with the edge terms."""
+    exact mean at each cell size (``rs``, in standard deviations), without and with the
+    edge terms. The standard deviations along the axes differ (each from 0.5 to 2), as the
+    grid's do."""
     rng = np.random.default_rng(seed)
     alpha = rng.uniform(0.0, 2 * math.pi)
     n = np.array([math.cos(alpha), math.sin(alpha)])
-    bound = rng.uniform(1.0, 4.0)
+    sd = np.exp(rng.uniform(math.log(0.5), math.log(2.0), 2))
+    spread = float(np.linalg.norm(sd * n))  # the step's standard deviation across the line
+    bound = rng.uniform(1.0, 4.0) * spread
     # the mean from 1 standard deviation beyond the line to 2 inside it
-    mu = (bound - rng.uniform(-1.0, 2.0)) * n + rng.uniform(-2.0, 2.0) * np.array([-n[1], n[0]])
+    mu = ((bound - spread * rng.uniform(-1.0, 2.0)) * n
+          + rng.uniform(-2.0, 2.0) * np.array([-n[1], n[0]]))
     c = np.concatenate([rng.normal(size=3), 0.2 * rng.normal(size=3)])
     offset = rng.uniform(-0.5, 0.5, 2)
-    exact = _exact_mean(mu, alpha, bound, c)
+    exact = _exact_mean(mu, sd, alpha, bound, c)
     out = []
-    for h in hs:
-        plain, _ = _row_mean(mu, alpha, bound, h, offset * h, c, False)
-        corrected, leak = _row_mean(mu, alpha, bound, h, offset * h, c, True)
+    for r in rs:
+        plain, _ = _row_mean(mu, sd, alpha, bound, r, offset, c, False)
+        corrected, leak = _row_mean(mu, sd, alpha, bound, r, offset, c, True)
         assert abs(leak) < 1e-12
         out.append((plain - exact, corrected - exact))
     return np.array(out)
@@ -141,11 +154,12 @@ def _misses(seed, hs):
 
 def test_edge_terms_leave_a_rows_mean_a_third_order_miss():
     """Over 12 random steps near an oblique line (the mean from one standard deviation beyond
-    it to two inside, any angle, any placement of the grid), the row's miss of the exact mean
-    of a quadratic ``V`` falls by about 4 from cells of 0.5 to 0.25 standard deviations
-    without the edge terms (second order: 3.8 on these steps) and by about 8 with them (third
-    order: 7.6); at 0.25 the terms leave 15 % of the miss (9 % on 40 other steps). The terms
-    move no mass."""
+    it to two inside, any angle, any placement of the grid, standard deviations of 0.5-2
+    along the axes and cells in proportion), the row's miss of the exact mean of a quadratic
+    ``V`` falls by about 4 from cells of 0.5 to 0.25 standard deviations without the edge
+    terms (second order: 4.0 on these steps) and by about 8 with them (third order:
+    8.1); at 0.25 the terms leave 21 % of the miss (14 % on 40 other steps). The
+    terms move no mass."""
     misses = np.array([_misses(seed, (0.5, 0.25)) for seed in range(12)])  # (seed, h, kind)
     total = np.abs(misses).sum(axis=0)
     plain_rate = total[0, 0] / total[1, 0]
