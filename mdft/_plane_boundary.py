@@ -94,6 +94,18 @@ def inside_centroid(c1, c2, h1, h2, ex, ey, bound, poly):
 
 
 @njit
+def _below(t0, td, u_lo, u_hi):
+    """``[u_lo, u_hi]`` narrowed to where ``t0 + u td < 0``; ``(u_lo, u_hi, ok)``, not ok
+    when nothing of the line is there."""
+    if abs(td) < 1e-14:
+        return u_lo, u_hi, t0 < 0.0
+    lim = -t0 / td
+    if td > 0.0:
+        return u_lo, min(u_hi, lim), True
+    return max(u_lo, lim), u_hi, True
+
+
+@njit
 def _line_piece(i, c1, c2, h1, h2, ex, ey, bound):
     """The piece of threshold line ``i`` (``ex[i] z1 + ey[i] z2 = bound``) inside the cell
     centred at ``(c1, c2)`` and on the inner side of the other two lines: ``(length,
@@ -101,44 +113,25 @@ def _line_piece(i, c1, c2, h1, h2, ex, ey, bound):
     gx = ex[i]
     gy = ey[i]
     g2 = gx * gx + gy * gy
-    # the line: z0 + u d, with d along it
+    # the line: z0 + u d, with d along it, cut by the cell's four sides and the other lines
     z01 = gx * bound / g2
     z02 = gy * bound / g2
     d1 = -gy
     d2 = gx
-    u_lo = -math.inf
-    u_hi = math.inf
-    for axis in range(2):
-        z0 = z01 if axis == 0 else z02
-        d = d1 if axis == 0 else d2
-        lo = (c1 if axis == 0 else c2) - 0.5 * (h1 if axis == 0 else h2)
-        hi = lo + (h1 if axis == 0 else h2)
-        if abs(d) < 1e-14:
-            if z0 < lo or z0 >= hi:
-                return 0.0, c1, c2
-            continue
-        a = (lo - z0) / d
-        b = (hi - z0) / d
-        if a > b:
-            a, b = b, a
-        u_lo = max(u_lo, a)
-        u_hi = min(u_hi, b)
+    lo1 = c1 - 0.5 * h1
+    lo2 = c2 - 0.5 * h2
+    u_lo, u_hi, ok = _below(lo1 - z01, -d1, -math.inf, math.inf)
+    if ok:
+        u_lo, u_hi, ok = _below(z01 - (lo1 + h1), d1, u_lo, u_hi)
+    if ok:
+        u_lo, u_hi, ok = _below(lo2 - z02, -d2, u_lo, u_hi)
+    if ok:
+        u_lo, u_hi, ok = _below(z02 - (lo2 + h2), d2, u_lo, u_hi)
     for k in range(3):
-        if k == i:
-            continue
-        # ex[k] z1 + ey[k] z2 < bound along the line
-        t0 = ex[k] * z01 + ey[k] * z02 - bound
-        td = ex[k] * d1 + ey[k] * d2
-        if abs(td) < 1e-14:
-            if t0 >= 0.0:
-                return 0.0, c1, c2
-            continue
-        lim = -t0 / td
-        if td > 0.0:
-            u_hi = min(u_hi, lim)
-        else:
-            u_lo = max(u_lo, lim)
-    if u_hi <= u_lo:
+        if ok and k != i:
+            u_lo, u_hi, ok = _below(ex[k] * z01 + ey[k] * z02 - bound, ex[k] * d1 + ey[k] * d2,
+                                    u_lo, u_hi)
+    if not ok or u_hi <= u_lo:
         return 0.0, c1, c2
     um = 0.5 * (u_lo + u_hi)
     return (u_hi - u_lo) * math.sqrt(g2), z01 + um * d1, z02 + um * d2
@@ -170,6 +163,9 @@ def add_edge_terms(cuts, n_cut, o1, o2, h1, h2, n1, n2, ex, ey, reach, bound, mu
         b = cuts[q, 1]
         c1 = o1 + a * h1
         c2 = o2 + b * h2
+        g1, g2, area = inside_centroid(c1, c2, h1, h2, ex, ey, bound, poly)
+        if area <= 0.0:
+            continue
         for i in range(3):
             ell, p1, p2 = _line_piece(i, c1, c2, h1, h2, ex, ey, bound)
             if ell <= 0.0:
@@ -182,15 +178,16 @@ def add_edge_terms(cuts, n_cut, o1, o2, h1, h2, n1, n2, ex, ey, reach, bound, mu
             b2 = b - 1 if ny >= 0.0 else b + 1
             if a2 < 0 or a2 >= n1 or b2 < 0 or b2 >= n2:
                 continue
+            # a neighbour outside the region (near a corner) leaves the piece out, as does
+            # one whose clipped part is empty
             cx1 = o1 + a2 * h1
             cy2 = o2 + b2 * h2
             if (not _cell_inside(cx1, c2, ex, ey, reach, bound)
                     or not _cell_inside(c1, cy2, ex, ey, reach, bound)):
                 continue
-            g1, g2, area = inside_centroid(c1, c2, h1, h2, ex, ey, bound, poly)
             x1, x2, area_x = inside_centroid(cx1, c2, h1, h2, ex, ey, bound, poly)
             y1, y2, area_y = inside_centroid(c1, cy2, h1, h2, ex, ey, bound, poly)
-            if area <= 0.0 or area_x <= 0.0 or area_y <= 0.0:
+            if area_x <= 0.0 or area_y <= 0.0:
                 continue
             # V(q) ~ V_c + G . (q - g), with G from M G = (V_c - V_x, V_c - V_y), the
             # rows of M being g - x and g - y
