@@ -15,6 +15,7 @@ import numpy as np
 from ._plane_chain import (PILOT_RUNAWAY, TooManyStates, build_moment_chain, mean_sums,
                            narrow_axes, near_occupied, pilot_pass, plane_geometry,
                            propagate_moments, reference_sums, solve_moments)
+from ._plane_spread import absorbed_spread
 from ._threshold_fallback import RT_WEIGHT_FLOOR, steps_per_walk
 from ._threshold_solve import error_estimate, krylov, mean_rt
 from .threshold_result import ThresholdProbabilities
@@ -95,7 +96,9 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
     from a constant reference sum and spread ``PILOT_DELTA``, the second from
     the first's fit) fit the reference sums and their spread from the
     occupation; every pass that counts uses that fit, so ``"propagate"`` and
-    ``"solve"`` solve the same chains. A pilot whose closure runs away is cut
+    ``"solve"`` solve the same chains, with the spread measured among the walks about to
+    decide (:func:`mdft._plane_spread.absorbed_spread`) where it can be, the pilots' where
+    not. A pilot whose closure runs away is cut
     (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
     walks of passes at the first resolution that counts, the last change joining
     the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
@@ -157,6 +160,15 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 "states (its variance came out negative: the walks' sums stray far from the "
                 "sums the chain is linearised about, as where the starting preference P0 sums "
                 "far from where the walks' sums settle)")
+        if state["delta"] > 0.0:
+            # the spread that matters: among the walks about to decide (simulated), not the
+            # pilots' spread over the whole occupation
+            spread = absorbed_spread(model, theta, solve["max_steps"],
+                                     plane_geometry(model, theta, k)["E"], state["ref"])
+            if spread is not None:
+                logger.debug("spread of the sum: %.3g in the pilots, %.3g among the walks "
+                             "about to decide", state["delta"], spread)
+                state["delta"] = spread
         if limit:
             # a cut pilot's occupation stops short of where the walks go: every row
             state["near"] = None if cut else near_occupied(chain, occ)

@@ -173,8 +173,11 @@ def _hazard_drift(hazard, t):
         v0 = hazard[t - 3 * wk]
         v1 = hazard[t - 2 * wk]
         v2 = hazard[t - wk]
-        # a hazard of exactly 0 may be mass that has not reached the thresholds yet
-        if v0 == 0.0 or v1 == 0.0 or v2 == 0.0 or hazard[t] == 0.0:
+        # a hazard of 0 may be mass that has not reached the thresholds yet, and so may a
+        # negative one: the moment closure's choices of mass that is nowhere near them
+        # (rounding-sized and negative, they settled at -1e-10 over the first hundred steps
+        # of a thousand-step deliberation, and a tail filled from there decided nothing)
+        if v0 <= 0.0 or v1 <= 0.0 or v2 <= 0.0 or hazard[t] <= 0.0:
             return -1.0
         d = drift(v0, v1, v2, hazard[t])
         if d >= 0.0:

@@ -762,11 +762,12 @@ def test_a_plane_of_reference_sums_far_off_is_refused_at_once():
     chosen in 85.9 % of 10^6 simulated trials. The grid answers' jumps used to refuse it
     only after the resolution-0.5 pass (the early refusal's rate rule); the closure's plane
     probe (each cell's reference sum the walks' own mean sum) changes the probabilities by
-    0.037, the size of the error, and refuses it on the coarsest grid."""
+    0.037, the size of the error, and refuses it on the coarsest grid (the closure's term is
+    now 0.027, its spread measured among the walks about to decide)."""
     model, theta = seed_9494_model(33)
     with pytest.raises(ValueError, match=r"the spread of the summed preference and the plane "
                                          r"of its reference sums alone may change the "
-                                         r"probabilities by 0\.03"):
+                                         r"probabilities by 0\.0[23]"):
         threshold_probabilities(model, theta, fallback="raise")
 
 
@@ -790,21 +791,23 @@ def test_out_of_reach_assumes_an_optimistic_rate(history, left, hopeless):
         assert "mean response times" in reason and f"{left} finer grids" in reason
 
 
-def test_a_slow_refinement_within_reach_is_carried_to_the_end():
-    """Seed 9494 model 37 of the benchmark's draws: the closure's term fills 97 % of
-    rt_rtol and the grid term falls 0.0022, 0.0010, 0.0002 from resolution 0.71 on; the
-    early refusal's optimistic rate lets it refine, and it is answered at resolution 0.25
-    within the tolerances."""
+def test_a_slow_refinement_within_reach_is_carried_on():
+    """Seed 9494 model 37 of the benchmark's draws: with the pilots' spread of the sum the
+    closure's term filled 97 % of rt_rtol and the grid term fell 0.0022, 0.0010, 0.0002 from
+    resolution 0.71 on; the early refusal's optimistic rate let it refine, and it was answered
+    at resolution 0.25. With the spread among the walks about to decide the term leaves more
+    room, and it is answered at 0.5, past the first two comparisons, within the tolerances
+    (the rate rule itself: test_out_of_reach_assumes_an_optimistic_rate above)."""
     model, theta = seed_9494_model(37)
     res = threshold_probabilities(model, theta, fallback="raise")
-    assert res.resolution == pytest.approx(0.25)
+    assert res.resolution <= 0.5 + 1e-9
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
 
 
 # Draws of random_model (seeds of np.random.default_rng) answered at the half step 2**(-1/4)
 # whose answer at tolerances three times tighter refines at least twice further (of the first
-# 80 seeds, 23 are answered there; at tighter tolerances most are refused by their closure)
-HALF_STEP_SEEDS = [17, 19, 54]
+# 80 seeds, 32 are answered there, and five of them refine so: 3, 17, 18, 55 and 62)
+HALF_STEP_SEEDS = [17, 18, 55]
 
 
 @pytest.mark.parametrize("seed", HALF_STEP_SEEDS)
