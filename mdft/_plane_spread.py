@@ -10,8 +10,8 @@ sums about the plane of reference sums. The pilots' own measure (the occupation-
 spread of the sum within the states, from a second moment carried without the selection
 at the thresholds) stays where this one cannot be made. On the 78 three-option models of
 four random draws where both were measured, the pilots' spread was 0.27-5.8 times this one
-(median 1.05; above 1.2 on 29 of them, and 1.6-5.8 on the ten largest), and on models where the difference
-mattered it made mean times run short by up to 1.2 %."""
+(median 1.05; above 1.2 on 29 of them, and 1.6-5.8 on the ten largest), and on models where
+the difference mattered it made mean times run short by up to 1.2 %."""
 
 from __future__ import annotations
 
