@@ -23,8 +23,8 @@ from .simulate import N_CHUNKS, _reduced_args, _stream_states
 #: Trials of the first batch, and at most in all.
 FIRST_TRIALS = 500
 MAX_TRIALS = 4_000
-#: Trial-steps in all, the first batch's included (the second is cut to fit): about 0.02 s
-#: on two threads. The first batch alone may take more (``FIRST_TRIALS`` times the step
+#: Trial-steps in all, the first batch's included (the second is cut to fit): about
+#: 0.02-0.03 s on two threads. The first batch alone may take more (``FIRST_TRIALS`` times the step
 #: limit at most).
 MAX_WORK = 2_000_000
 #: Fewer walks than this decided after the first step: the spread is not measured here.
