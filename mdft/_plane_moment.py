@@ -55,7 +55,7 @@ _BLOCK_SOURCES = 256
 @njit
 def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, theta, o1, o2,
          h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, scratch, tmp, marg1, marg2, ends, absorbed,
-         box, edge):
+         box, edge, poly, cuts):
     """One source at ``(z, s)``: choices into ``absorbed``, staying mass added to ``scratch``
     (its bounding box in ``box``); returns ``(s_next, lost)``.
 
@@ -65,7 +65,8 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
     ``sd_cell``, ``sd_exact``, ``sd_opt``, ``pair_sd`` and ``pair_rho``. ``tmp`` is zero on
     entry and on return; ``marg1`` (3, n1), ``marg2`` (3, n2) and ``ends`` are work space
     (:func:`_margins`, :func:`mdft._plane.cut_mass_with`). ``edge``: add each narrowed
-    component's edge terms (:func:`mdft._plane_boundary.add_edge_terms`)."""
+    component's edge terms (:func:`mdft._plane_boundary.add_edge_terms`), with the work
+    space ``poly`` and ``cuts`` (:func:`_edge_work`)."""
     J = w.shape[0]
     P0 = ex[0] * z1 + ey[0] * z2 + s / 3.0
     P1 = ex[1] * z1 + ey[1] * z2 + s / 3.0
@@ -78,10 +79,6 @@ def _row(z1, z2, s, S, ex, ey, reach, CM, w, shrunk, sd_cell, exact, sd_exact, t
     zm2 = ey[0] * m0 + ey[1] * m1 + ey[2] * m2
     bound = theta - s_next / 3.0
     lost = False
-    # work space of the edge terms: a clipped cell's polygon, the cut cells of a component
-    # (a threshold line crosses at most n1 + n2 + 1 cells)
-    poly = np.empty((4, 8 if edge else 1))
-    cuts = np.empty((3 * (n1 + n2) + 8 if edge else 1, 2), dtype=np.int64)
     for i in range(3):
         absorbed[i] = 0.0
     for j in range(J):
@@ -310,7 +307,8 @@ def _compact(sA, sB, box, cell, vals_a, vals_b, k0, cap):
 
 @njit
 def _source(z1, z2, s_mid, d, St, ex, ey, reach, CM, w, shrunk, sdc, exact, sde, theta, o1, o2,
-            h1, h2, n1, n2, sdo, psd, prho, sA, sB, tmp, marg1, marg2, ends, aA, aB, box, edge):
+            h1, h2, n1, n2, sdo, psd, prho, sA, sB, tmp, marg1, marg2, ends, aA, aB, box, edge,
+            poly, cuts):
     """Both evaluations of one source (at ``s_mid - d`` and ``s_mid + d``; one when ``d``
     is 0) into ``sA``, ``sB``, ``aA``, ``aB`` and ``box``; returns ``(snA, snB, lost)``."""
     box[0] = n1
@@ -319,11 +317,11 @@ def _source(z1, z2, s_mid, d, St, ex, ey, reach, CM, w, shrunk, sdc, exact, sde,
     box[3] = -1
     snA, lostA = _row(z1[0], z2[0], s_mid - d, St, ex, ey, reach, CM, w, shrunk, sdc, exact,
                       sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sA, tmp, marg1,
-                      marg2, ends, aA, box, edge)
+                      marg2, ends, aA, box, edge, poly, cuts)
     if d > 0.0:
         snB, lostB = _row(z1[1], z2[1], s_mid + d, St, ex, ey, reach, CM, w, shrunk, sdc,
                           exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho, sB, tmp,
-                          marg1, marg2, ends, aB, box, edge)
+                          marg1, marg2, ends, aB, box, edge, poly, cuts)
     else:
         snB = snA
         lostB = lostA
@@ -359,6 +357,16 @@ def _small(S, E, h1, h2, sd_cell, sd_exact, sd_opt, pair_sd, pair_rho):
 
 
 @njit
+def _edge_work(edge, n1, n2):
+    """Work space of the edge terms of one part: a clipped cell's polygon, and the cut
+    cells of a component (a threshold line crosses at most ``n1 + n2 + 1`` cells); one
+    entry each without them."""
+    poly = np.empty((4, 8 if edge else 1))
+    cuts = np.empty((3 * (n1 + n2) + 8 if edge else 1, 2), dtype=np.int64)
+    return poly, cuts
+
+
+@njit
 def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd_exact, theta,
                      o1, o2, h1, h2, n1, n2, sd_opt, pair_sd, pair_rho, work, margs, ends,
                      boxes, cap, cell, vals_a, vals_b, counts, absorbed, s_next, lost, edge):
@@ -373,11 +381,13 @@ def _sources_of_part(part, zs, s_mid, d, S, E, CM, w, shrunk, sd_cell, exact, sd
     marg1 = margs[part, 0]
     marg2 = margs[part, 1]
     box = boxes[part]
+    poly, cuts = _edge_work(edge, n1, n2)
     for i in range(part, zs.shape[0], n_parts):
         snA, snB, lst = _source(
             (zs[i, 0], zs[i, 1]), (zs[i, 2], zs[i, 3]), s_mid[i], d[i], St, ex, ey, reach,
             CM, w, shrunk, sdc, exact, sde, theta, o1, o2, h1, h2, n1, n2, sdo, psd, prho,
-            sA, sB, tmp, marg1, marg2, ends[part], absorbed[i, 0], absorbed[i, 1], box, edge)
+            sA, sB, tmp, marg1, marg2, ends[part], absorbed[i, 0], absorbed[i, 1], box, edge,
+            poly, cuts)
         s_next[i, 0] = snA
         s_next[i, 1] = snB
         lost[i] = lst

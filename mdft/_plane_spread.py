@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _spread_kernels
-from .simulate import N_CHUNKS, _reduced_args, _stream_states
+from .simulate import _chunk_layout, _reduced_args
 
 #: Trials of the first batch, and at most in all.
 FIRST_TRIALS = 500
@@ -35,12 +35,10 @@ SEED = 20_261
 
 def _trials(args, n, gen):
     """Decision steps (``-1`` undecided) and the preferences the step before, of ``n``
-    trials on :data:`N_CHUNKS` streams drawn from ``gen``."""
+    trials on the streams of :func:`mdft.simulate._chunk_layout` drawn from ``gen``."""
     S, CM, L, cuts, P0, max_steps, theta = args
-    states = _stream_states(gen, N_CHUNKS)
-    bounds = (np.arange(N_CHUNKS + 1, dtype=np.int64) * n) // N_CHUNKS
+    states, bounds, _, steps = _chunk_layout(gen, n)
     out = np.zeros((n, 3))
-    steps = np.empty(n, dtype=np.int64)
     _spread_kernels.last_states(states, bounds, S, CM, L, cuts, P0, max_steps, theta, out,
                                 steps)
     return steps, out
