@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/bench_fit_rt.py                         # 12 random models
     python benchmarks/bench_fit_rt.py --models 12 --workers 2 --checkpoint /tmp/rt-fits
+    python benchmarks/bench_fit_rt.py --triple --models 6 --trials 600 --workers 2
 
 For each random true model (3 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
 sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta = 12 known),
@@ -12,6 +13,11 @@ stopping, and ``w``, ``sigma2`` and ``theta`` are fitted twice from the same tri
 (the exact engine's ``rt_pmf``) and from the choices alone. Reported per model and parameter:
 the absolute error of ``w[0]`` and the relative errors of ``sigma2`` and ``theta``, and their
 medians. The fits run through ``mdft.fit_many``; with ``--checkpoint`` a re-run resumes.
+
+With ``--triple`` the trials are of the triple of the three options instead, and both fits use
+the response times: one with the exact engine (``method="threshold_exact"``, the three-option
+chain's ``rt_pmf``, every decision step), one with the simulated likelihood (``method=
+"simulation"``, binned times); the table gives their errors side by side.
 """
 
 from __future__ import annotations
@@ -38,14 +44,15 @@ MAX_STEPS = 500
 PAIRS = [[0, 1], [0, 2], [1, 2]]
 
 
-def random_model(seed, n_trials):
-    """(ChoiceData with decision steps, M, truth): one random model, its three pairs."""
+def random_model(seed, n_trials, subsets=PAIRS):
+    """(ChoiceData with decision steps, M, truth): one random model, trials of each of
+    ``subsets`` (its three pairs)."""
     rng = np.random.default_rng(seed)
     M = rng.uniform(0.0, 3.0, size=(3, 2))
     w0 = rng.uniform(0.3, 0.7)
     truth = dict(w=np.array([w0, 1 - w0]), sigma2=rng.uniform(0.5, 3.0),
                  theta=rng.uniform(5.0, 15.0))
-    data = threshold_trials(M, truth["w"], dict(KNOWN, sigma2=truth["sigma2"]), PAIRS,
+    data = threshold_trials(M, truth["w"], dict(KNOWN, sigma2=truth["sigma2"]), subsets,
                             truth["theta"], MAX_STEPS, n_trials, rng)
     return data, M, truth
 
@@ -59,17 +66,25 @@ def errors(res, truth):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", type=int, default=12)
-    ap.add_argument("--trials", type=int, default=200, help="trials per pair")
+    ap.add_argument("--trials", type=int, default=200, help="trials per subset")
+    ap.add_argument("--triple", action="store_true",
+                    help="trials of the triple; exact against simulated likelihood, both with times")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--checkpoint", default=None)
     args = ap.parse_args(argv)
-    models = [random_model(1000 + i, args.trials) for i in range(args.models)]
+    subsets = [[0, 1, 2]] if args.triple else PAIRS
+    models = [random_model(1000 + i, args.trials, subsets) for i in range(args.models)]
+    # the two fits of each model: (key, label, fit arguments)
+    kinds = ([("exact", "exact engine", dict(response_times=True, method="threshold_exact")),
+              ("sim", "simulated", dict(response_times=True, method="simulation"))]
+             if args.triple else
+             [("rt", "with response times", dict(response_times=True)),
+              ("choice", "choices only", dict(response_times=False))])
     problems = {}
     for i, (data, M, truth) in enumerate(models):
-        for rt in (True, False):
-            problems[f"{i}-{'rt' if rt else 'choice'}"] = dict(
-                data=data, M=M, response_times=rt)
+        for key, _, extra in kinds:
+            problems[f"{i}-{key}"] = dict(data=data, M=M, **extra)
     t0 = time.perf_counter()
     many = mdft.fit_many(problems, rng=0, stopping=mdft.Threshold(10.0, MAX_STEPS),
                          params=PARAMS, fixed=KNOWN, n_starts=args.starts, n_screen_per_start=4,
@@ -77,26 +92,30 @@ def main(argv=None):
                          executor="serial" if args.workers == 1 else None,
                          n_workers=args.workers, checkpoint=args.checkpoint)
     elapsed = time.perf_counter() - t0
-    print(f"{args.models} random 3-option models, {args.trials} trials per pair; fitted {PARAMS}; "
+    what = "trials of the triple" if args.triple else "trials per pair"
+    print(f"{args.models} random 3-option models, {args.trials} {what}; fitted {PARAMS}; "
           f"{elapsed / len(problems):.0f} s per fit")
-    print(f"{'model':>5s} {'w0':>6s} {'sigma2':>7s} {'theta':>6s} | with response times: "
-          f"{'|dw0|':>6s} {'sigma2':>7s} {'theta':>6s} | choices only: {'|dw0|':>6s} "
-          f"{'sigma2':>7s} {'theta':>6s}")
-    table = {"rt": [], "choice": []}
+    head = f"{'model':>5s} {'w0':>6s} {'sigma2':>7s} {'theta':>6s} |"
+    for _, label, _ in kinds:
+        head += f" {label}: {'|dw0|':>6s} {'sigma2':>7s} {'theta':>6s} conv |"
+    print(head)
+    table = {key: [] for key, _, _ in kinds}
     for i, (_, _, truth) in enumerate(models):
         row = f"{i:5d} {truth['w'][0]:6.3f} {truth['sigma2']:7.3f} {truth['theta']:6.2f} |"
-        for kind in ("rt", "choice"):
-            e = errors(many[f"{i}-{kind}"], truth)
-            table[kind].append(e)
-            row += (f"{'':>22s}" if kind == "rt" else f"{'':>14s}")
-            row += f"{e[0]:6.3f} {e[1]:6.1%} {e[2]:6.1%} |"
+        for key, label, _ in kinds:
+            res = many[f"{i}-{key}"]
+            e = errors(res, truth)
+            table[key].append(e)
+            row += (f" {'':>{len(label) + 1}s}{e[0]:6.3f} {e[1]:7.1%} {e[2]:6.1%} "
+                    f"{'yes' if res.converged else 'no':>4s} |")
         print(row)
-    for kind, label in (("rt", "with response times"), ("choice", "choices only")):
-        med = np.median(np.array(table[kind]), axis=0)
-        mx = np.max(np.array(table[kind]), axis=0)
+    for key, label, _ in kinds:
+        med = np.median(np.array(table[key]), axis=0)
+        mx = np.max(np.array(table[key]), axis=0)
+        n_conv = sum(many[f"{i}-{key}"].converged for i in range(len(models)))
         print(f"{label:<22s} median |dw0| {med[0]:.3f}, sigma2 {med[1]:.1%}, theta "
-              f"{med[2]:.1%}; largest {mx[0]:.3f}, {mx[1]:.1%}, {mx[2]:.1%}")
-
+              f"{med[2]:.1%}; largest {mx[0]:.3f}, {mx[1]:.1%}, {mx[2]:.1%}; "
+              f"{n_conv} of {len(models)} converged")
 
 if __name__ == "__main__":
     main()

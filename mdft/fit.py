@@ -125,9 +125,11 @@ def fit(
         least ``max_steps``).
     method : {"auto", "threshold_exact", "simulation"}
         Engine for threshold stopping; ``"auto"`` uses ``mdft.threshold_probabilities`` when
-        every subset has 2 options (about 0.3 s per evaluation) and simulation otherwise
-        (the lattice method for 3 options costs seconds per evaluation, too slow for an
-        optimiser; ask for it explicitly with ``"threshold_exact"``). Fixed time always uses
+        every subset has 2 options (0.01-0.12 s per subset and evaluation) and simulation
+        otherwise: with 3 options the exact engine takes about 0.2 s per subset and
+        evaluation at the median, seconds on some models, and refuses the models it cannot
+        vouch for (infeasible points for the optimiser), so a fit takes minutes (ask for it
+        with ``"threshold_exact"``; ``docs/fitting.md``, section 7). Fixed time always uses
         the closed form.
     threshold_options : dict, optional
         Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``atol``), for

@@ -171,3 +171,26 @@ def test_choice_data_response_times_are_read_only_copies():
     assert d.response_times[0][0].tolist() == [3.0, 4.0] and d.has_response_times
     with pytest.raises(ValueError, match="read-only"):
         d.response_times[0][0][0] = 1.0
+
+
+# one iteration from one start on purpose: the fit only has to carry the exact likelihood
+@pytest.mark.filterwarnings("ignore::mdft.FitConvergenceWarning")
+def test_exact_joint_likelihood_for_three_options():
+    M3 = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+    m = mdft.MDFTModel(M3, [0.5, 0.5], sigma2=1.0, **KNOWN)
+    sim = mdft.simulate(m, 300, stopping=mdft.Threshold(6.0, MAX_STEPS), rng=5)
+    assert sim.n_undecided == 0
+    data = mdft.ChoiceData.from_trials([[0, 1, 2]] * 300, sim.choices,
+                                       response_times=sim.decision_steps)
+    res = mdft.fit(data, M3, stopping=mdft.Threshold(6.0, MAX_STEPS), params=["sigma2"],
+                   fixed=dict(w=[0.5, 0.5], **KNOWN), method="threshold_exact", n_starts=1,
+                   max_iter=1, rng=0)
+    assert res.engine == "threshold_exact" and res.likelihood == "choices and decision steps"
+    for s2 in (0.7, 1.6):
+        ref = mdft.threshold_probabilities(m.replace(sigma2=s2), 6.0, max_steps=MAX_STEPS,
+                                           fallback="raise")
+        assert ref.engine == "plane"
+        decided = 1.0 - ref.p_undecided
+        direct = sum(np.log(ref.rt_pmf[t.astype(int) - 1, i] / decided).sum()
+                     for i, t in enumerate(data.response_times[0]))
+        assert res.log_likelihood_at(dict(sigma2=s2)) == pytest.approx(direct, rel=1e-10)
