@@ -68,7 +68,7 @@ def main(argv=None):
     ap.add_argument("--models", type=int, default=12)
     ap.add_argument("--trials", type=int, default=200, help="trials per subset")
     ap.add_argument("--triple", action="store_true",
-                    help="trials of the triple; exact against simulated likelihood, both with times")
+                    help="trials of the triple: exact against simulated likelihood, with times")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--checkpoint", default=None)
@@ -116,6 +116,7 @@ def main(argv=None):
         print(f"{label:<22s} median |dw0| {med[0]:.3f}, sigma2 {med[1]:.1%}, theta "
               f"{med[2]:.1%}; largest {mx[0]:.3f}, {mx[1]:.1%}, {mx[2]:.1%}; "
               f"{n_conv} of {len(models)} converged")
+
 
 if __name__ == "__main__":
     main()
