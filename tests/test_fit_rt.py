@@ -18,6 +18,14 @@ def model(w=TRUTH["w"], sigma2=TRUTH["sigma2"]):
     return mdft.MDFTModel(M2, w, sigma2=sigma2, **KNOWN)
 
 
+def _joint_log_likelihood(ref, times):
+    """``sum log f(i, t)`` over trials, straight from a ``threshold_probabilities`` result:
+    ``times[i]`` the decision steps of the trials that chose option ``i``."""
+    decided = 1.0 - ref.p_undecided
+    return sum(np.log(ref.rt_pmf[t.astype(int) - 1, i] / decided).sum()
+               for i, t in enumerate(times))
+
+
 @pytest.fixture(scope="module")
 def trials():
     sim = mdft.simulate(model(), 400, stopping=mdft.Threshold(TRUTH["theta"], MAX_STEPS),
@@ -40,9 +48,7 @@ def test_joint_log_likelihood_is_the_sum_over_trials_of_the_exact_pmf(trials, rt
     assert rt_fit.engine == "threshold_exact"
     for s2, th in ((1.0, 5.0), (2.5, 8.0)):
         ref = mdft.threshold_probabilities(model(sigma2=s2), th, max_steps=MAX_STEPS)
-        decided = 1.0 - ref.p_undecided
-        direct = sum(np.log(ref.rt_pmf[t.astype(int) - 1, i] / decided).sum()
-                     for i, t in enumerate(trials.response_times[0]))
+        direct = _joint_log_likelihood(ref, trials.response_times[0])
         got = rt_fit.log_likelihood_at(dict(sigma2=s2, theta=th))
         assert got == pytest.approx(direct, rel=1e-10)
 
@@ -190,7 +196,5 @@ def test_exact_joint_likelihood_for_three_options():
         ref = mdft.threshold_probabilities(m.replace(sigma2=s2), 6.0, max_steps=MAX_STEPS,
                                            fallback="raise")
         assert ref.engine == "plane"
-        decided = 1.0 - ref.p_undecided
-        direct = sum(np.log(ref.rt_pmf[t.astype(int) - 1, i] / decided).sum()
-                     for i, t in enumerate(data.response_times[0]))
+        direct = _joint_log_likelihood(ref, data.response_times[0])
         assert res.log_likelihood_at(dict(sigma2=s2)) == pytest.approx(direct, rel=1e-10)
