@@ -9,7 +9,6 @@ from orchestration import (
     MDFTOrchestrator,
     OrchestratorAgent,
     WeightedAverageOrchestrator,
-    action_preferences,
     rollout,
     run_episode,
 )

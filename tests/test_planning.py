@@ -1,7 +1,6 @@
 """Reference tests of irl.planning against brute-force NumPy computations on tiny MDPs."""
 
 import itertools
-import warnings
 
 import numpy as np
 import pytest
