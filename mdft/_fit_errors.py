@@ -2,18 +2,23 @@
 
 The Hessian of the negative log-likelihood is taken by central differences on the
 optimiser's unit cube at the interior coordinates of the optimum, inverted, and mapped to
-natural units by the delta method (``docs/fitting.md``).
+natural units by the delta method (``docs/fitting.md``). On a likelihood smooth only up to
+a noise (``noise > 0``), each coordinate's step is about its own standard error instead of
+``step`` (:func:`mdft._differences.rough_steps`), so that the noise is small beside what
+the steps measure.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._differences import hessian, rough_steps
 from ._fit_params import PARAMETERS
 
 
-def standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3):
-    """Covariance and standard errors from the numerical Hessian (in natural units)."""
+def standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3, noise=0.0):
+    """Covariance and standard errors from the numerical Hessian (in natural units); with
+    ``noise > 0`` the steps are those of :func:`mdft._differences.rough_steps`."""
     labels = layout.labels
     m = len(labels)
     cov = np.full((m, m), np.nan)
@@ -58,7 +63,8 @@ def standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3):
     bad = ~interior
     idx = np.flatnonzero(interior)
     if idx.size:
-        H = _hessian(negloglik, u, idx, step)
+        steps = rough_steps(negloglik, u, idx) if noise > 0.0 else np.full(idx.size, step)
+        H = hessian(negloglik, u, idx, steps)
         # A coordinate that does not move the likelihood at all is not identified.
         d = np.diag(H)
         flat = d <= 1e-10 * max(float(np.max(np.abs(d))), 1e-300)
@@ -101,24 +107,3 @@ def standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3):
                 reasons["M"] = f"{n_undef} entries undefined: " + reasons["M"]
     fill(reasons)
     return cov, ses, notes
-
-
-def _hessian(f, u, idx, step):
-    """Central-difference Hessian of ``f`` at ``u`` over the coordinates ``idx``."""
-    k = idx.size
-    H = np.empty((k, k))
-    f0 = f(u)
-    for a in range(k):
-        i = idx[a]
-        e_i = np.zeros_like(u)
-        e_i[i] = step
-        fp, fm = f(u + e_i), f(u - e_i)
-        H[a, a] = (fp - 2.0 * f0 + fm) / step**2
-        for b in range(a + 1, k):
-            j = idx[b]
-            e_j = np.zeros_like(u)
-            e_j[j] = step
-            H[a, b] = H[b, a] = (
-                f(u + e_i + e_j) - f(u + e_i - e_j) - f(u - e_i + e_j) + f(u - e_i - e_j)
-            ) / (4.0 * step**2)
-    return 0.5 * (H + H.T)

@@ -112,7 +112,9 @@ def fit(
     agree_tol : float, optional
         Two starts agree when their log-likelihoods differ by at most this; default 0.01
         (smooth likelihoods) or 0.5 (simulated ones, whose optimiser stops on a step
-        function).
+        function). On a likelihood smooth only to a tolerance (the exact engine with a
+        subset of three options) they also agree within its noise's band
+        (``docs/fitting.md``, "Likelihoods smooth to a tolerance").
     response_times : {"auto", True, False}, default "auto"
         Put the response times of ``data`` in the likelihood: ``"auto"`` when the data have
         them and stopping is a threshold, True to require it, False for choices only. The
@@ -129,7 +131,9 @@ def fit(
         otherwise: with 3 options the exact engine takes about 0.2 s per subset and
         evaluation at the median, seconds on some models, and refuses the models it cannot
         vouch for (infeasible points for the optimiser), so a fit takes minutes (ask for it
-        with ``"threshold_exact"``; ``docs/fitting.md``, section 7). Fixed time always uses
+        with ``"threshold_exact"``; ``docs/fitting.md``, section 7). That likelihood is
+        smooth only to about 1e-6 of itself; the optimiser's steps and the standard errors'
+        Hessian are sized for it (section 3). Fixed time always uses
         the closed form.
     threshold_options : dict, optional
         Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``atol``), for
@@ -241,7 +245,7 @@ def fit(
     out = multistart(negloglik, layout.pack(first), n_starts=n_starts,
                      n_screen=n_screen_per_start * (n_starts - 1), rng=rng, smooth=smooth,
                      max_iter=max_iter, tol=tol, fatol=tol * n_obs, agree_tol=agree_tol,
-                     n_confirm=n_confirm)
+                     n_confirm=n_confirm, noise=lik.noise)
     best = out.best
     if best.fun >= INFEASIBLE:
         raise ValueError(
@@ -288,7 +292,7 @@ def fit(
             stacklevel=2,
         )
 
-    cov, ses, notes = standard_errors(negloglik, layout, u_hat, smooth)
+    cov, ses, notes = standard_errors(negloglik, layout, u_hat, smooth, noise=lik.noise)
     loglik = -float(best.fun) + lik.constant
     k = layout.size
     preds = tuple(lik.predict(p_hat))

@@ -44,6 +44,13 @@ DEFAULT_RT_BINS = 10
 #: (``mdft._threshold_bound.decision_bound``) times the trials is at most this: the
 #: expected number of trials that would decide.
 UNREACHED_TRIALS = 0.01
+#: Relative noise of the exact engine's log-likelihood on three options: the chain's spread
+#: of the summed preference is measured on a short simulation with a fixed seed
+#: (``mdft._plane_spread``), whose walks decide a step earlier or later as the parameters
+#: move, so the likelihood jumps by small amounts at every scale. Measured on 8 random
+#: triples of 300 trials (steps of 2e-6 in sigma2, theta and w): 7e-8 to 6e-6 of the
+#: log-likelihood (``docs/fitting.md``, "Likelihoods smooth to a tolerance").
+PLANE_NOISE = 3e-6
 
 
 class _Undecided:
@@ -241,6 +248,15 @@ class Likelihood:
         self.first_failure = ""
         #: Warnings of the exact engine at the latest evaluation (reported at the optimum).
         self.last_warnings = []
+
+    @property
+    def noise(self) -> float:
+        """Relative noise up to which the negative log-likelihood is smooth in the
+        parameters: :data:`PLANE_NOISE` with the exact engine on a subset of three options,
+        else 0 (smooth to rounding; the simulated likelihood is a step function instead)."""
+        if self.engine == "threshold_exact" and any(len(s) == 3 for s in self.subsets):
+            return PLANE_NOISE
+        return 0.0
 
     @property
     def label(self) -> str:

@@ -26,6 +26,8 @@ import numpy as np
 from scipy import optimize
 from scipy.stats import qmc
 
+from ._differences import ROUGH_MIN, gradient, hessian, rough_steps, room
+
 __all__ = ["LocalRun", "MultiStartOutcome", "multistart"]
 
 #: A coordinate within this distance of 0 or 1 is on a bound.
@@ -39,6 +41,14 @@ _FLAT = 1e-3
 _BOX = 0.05
 _MIN_BOX = 1e-3
 _BOX_ROUNDS = 20
+#: Finite-difference step of the gradient (unit-cube coordinates) on an objective that is
+#: smooth only up to a relative noise (``noise > 0``): the default step of about 6e-6 would
+#: difference the noise (``docs/fitting.md``, "Likelihoods smooth to a tolerance").
+ROUGH_STEP = 3e-3
+#: There, L-BFGS-B stops once the objective falls by less than this times the noise (of
+#: itself): near the optimum the gradient, differenced over ROUGH_STEP, locates it better
+#: than values within the noise can.
+ROUGH_FTOL = 0.1
 
 
 @dataclass(frozen=True)
@@ -72,10 +82,20 @@ def _sobol(size, n, rng):
     return qmc.Sobol(size, scramble=True, seed=rng).random_base2(m)[:n]
 
 
-def _lbfgsb(objective, u0, lower, upper, max_iter, tol):
+def _lbfgsb(objective, u0, lower, upper, max_iter, tol, noise=0.0):
+    options = {"maxiter": max_iter, "ftol": max(tol, ROUGH_FTOL * noise), "gtol": 1e-7}
+    if noise > 0.0:
+        options["finite_diff_rel_step"] = ROUGH_STEP  # an absolute step: |u| <= 1
     return optimize.minimize(objective, u0, method="L-BFGS-B", jac="3-point",
-                             bounds=list(zip(lower, upper)),
-                             options={"maxiter": max_iter, "ftol": tol, "gtol": 1e-7})
+                             bounds=list(zip(lower, upper)), options=options)
+
+
+def flat_slope(f, noise):
+    """The largest slope (unit-cube coordinates) at which a smooth run at the value ``f``
+    counts as flat: :data:`_FLAT` times ``max(1, |f|)``, or, on an objective smooth only
+    to the relative ``noise``, the larger error that noise puts in a gradient differenced
+    over :data:`ROUGH_STEP`."""
+    return max(_FLAT, 2.0 * noise / ROUGH_STEP) * max(1.0, abs(f))
 
 
 def _slope(x, gradient):
@@ -89,7 +109,49 @@ def _slope(x, gradient):
     return float(np.max(np.abs(g))) if g.size else 0.0
 
 
-def _smooth_local(objective, u0, max_iter, tol):
+def newton_gain(objective, x, f):
+    """What a Newton step from ``x`` (value ``f``) of a rough objective would gain,
+    ``g^T H^-1 g / 2`` over the coordinates at least :data:`mdft._differences.ROUGH_MIN`
+    from the faces of the cube, with the gradient differenced over :data:`ROUGH_STEP` and
+    the Hessian over about a standard error (:func:`mdft._differences.rough_steps`); None
+    where no coordinate is that far in or the Hessian is not positive definite."""
+    idx = np.array([i for i in range(x.size) if room(x, i) >= ROUGH_MIN], dtype=np.intp)
+    if not idx.size:
+        return None
+    g = gradient(objective, x, idx, [min(ROUGH_STEP, room(x, i)) for i in idx])
+    H = hessian(objective, x, idx, rough_steps(objective, x, idx, f), f)
+    try:
+        np.linalg.cholesky(H)
+    except np.linalg.LinAlgError:
+        return None
+    gain = 0.5 * float(g @ np.linalg.solve(H, g))
+    return gain if math.isfinite(gain) else None
+
+
+def _band(noise, f):
+    """Values within this of ``f`` are within the objective's relative ``noise`` of it."""
+    return 2.0 * noise * max(1.0, abs(f))
+
+
+def _agreement(agree_tol, noise, best):
+    """How close to the best value ``best`` another start's value agrees with it."""
+    return max(agree_tol, _band(noise, best))
+
+
+def _within_noise(objective, x, f, noise):
+    """Where ``noise > 0`` and a Newton step from ``x`` would gain at most the noise's
+    band, ``2 noise max(1, |f|)``: the words saying so; otherwise an empty string."""
+    if not noise > 0.0:
+        return ""
+    band = _band(noise, f)
+    gain = newton_gain(objective, x, f)
+    if gain is None or gain > band:
+        return ""
+    return (f"within the likelihood's noise of the optimum (a Newton step would gain "
+            f"{gain:.2g}, at most {band:.2g})")
+
+
+def _smooth_local(objective, u0, max_iter, tol, noise=0.0):
     """L-BFGS-B on the unit cube, continued in boxes around its end while the likelihood
     still falls there.
 
@@ -100,19 +162,31 @@ def _smooth_local(objective, u0, max_iter, tol):
     goes on from there within a box of half-width :data:`_BOX` (doubled when the run ends on
     the box's edge, quartered when it gains nothing), for at most :data:`_BOX_ROUNDS` runs;
     the run is reported as converged only if it ends where the slope is flat. The boxes
-    share the run's ``max_iter`` iterations."""
+    share the run's ``max_iter`` iterations.
+
+    On an objective smooth only up to the relative ``noise`` (``noise > 0``), the gradient
+    is differenced over :data:`ROUGH_STEP`, L-BFGS-B stops once the objective falls by
+    less than :data:`ROUGH_FTOL` times ``noise`` of itself, and the slope is flat within
+    :func:`flat_slope`. Values within the noise of each other do not tell which point is
+    better, so a run can stop near the optimum on a point whose noise happens to be low,
+    with a slope still above that: there the run counts as converged where a Newton step
+    (:func:`newton_gain`) would gain no more than the noise's band, ``2 noise |f|``, before
+    and after the boxes."""
     zeros, ones = np.zeros(u0.size), np.ones(u0.size)
-    res = _lbfgsb(objective, u0, zeros, ones, max_iter, tol)
+    res = _lbfgsb(objective, u0, zeros, ones, max_iter, tol, noise)
     x, f = np.clip(res.x, 0.0, 1.0), float(res.fun)
     slope, n_iter = _slope(x, res.jac), int(res.nit)
-    if slope <= _FLAT * max(1.0, abs(f)):
+    if slope <= flat_slope(f, noise):
         return x, bool(res.success), str(res.message), n_iter
+    within = _within_noise(objective, x, f, noise)
+    if within:
+        return x, True, f"{res.message}; {within}", n_iter
     half, rounds = _BOX, 0
-    while (slope > _FLAT * max(1.0, abs(f)) and rounds < _BOX_ROUNDS and half >= _MIN_BOX
+    while (slope > flat_slope(f, noise) and rounds < _BOX_ROUNDS and half >= _MIN_BOX
            and n_iter < max_iter):
         rounds += 1
         lower, upper = np.maximum(x - half, 0.0), np.minimum(x + half, 1.0)
-        sub = _lbfgsb(objective, x, lower, upper, max_iter - n_iter, tol)
+        sub = _lbfgsb(objective, x, lower, upper, max_iter - n_iter, tol, noise)
         n_iter += int(sub.nit)
         if not float(sub.fun) < f:
             half /= 4.0
@@ -122,8 +196,11 @@ def _smooth_local(objective, u0, max_iter, tol):
         edge = ((x <= lower) & (lower > 0.0)) | ((x >= upper) & (upper < 1.0))
         if np.any(edge):
             half = min(2.0 * half, 0.5)
-    if slope <= _FLAT * max(1.0, abs(f)):
+    if slope <= flat_slope(f, noise):
         return x, True, f"{res.message}; continued in {rounds} boxes to a flat slope", n_iter
+    within = _within_noise(objective, x, f, noise)
+    if within:
+        return x, True, f"{res.message}; continued in {rounds} boxes; {within}", n_iter
     if n_iter >= max_iter:
         return x, False, f"{max_iter} iterations (max_iter) reached", n_iter
     return x, False, (f"the local search stopped where the likelihood still changes along "
@@ -131,9 +208,9 @@ def _smooth_local(objective, u0, max_iter, tol):
                       f"{rounds} boxes)"), n_iter
 
 
-def _local(objective, u0, *, smooth, max_iter, tol, fatol):
+def _local(objective, u0, *, smooth, max_iter, tol, fatol, noise=0.0):
     if smooth:
-        x, success, message, n_iter = _smooth_local(objective, u0, max_iter, tol)
+        x, success, message, n_iter = _smooth_local(objective, u0, max_iter, tol, noise)
     else:
         bounds = [(0.0, 1.0)] * u0.size
         res = optimize.minimize(objective, u0, method="Nelder-Mead", bounds=bounds,
@@ -162,7 +239,7 @@ def _spread(points, taken, k):
 
 
 def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, tol, fatol,
-               agree_tol, n_confirm=2):
+               agree_tol, n_confirm=2, noise=0.0):
     """Minimise ``objective`` over the unit cube from several starts; see the module docs.
 
     Parameters
@@ -181,9 +258,13 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
         L-BFGS-B with finite-difference gradients if True, else bounded Nelder-Mead.
     max_iter, tol, fatol : optimiser settings.
     agree_tol : float
-        Two optima agree when their objective values differ by at most this.
+        Two optima agree when their objective values differ by at most this, or by at
+        most the noise's band ``2 noise |f|`` of the best value where that is larger.
     n_confirm : int
         Extra starts when the best optimum was reached only once.
+    noise : float
+        Relative noise up to which a smooth objective is smooth (0: smooth to rounding);
+        see :func:`_smooth_local`.
 
     Returns
     -------
@@ -191,7 +272,7 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
     """
     first = np.asarray(first, dtype=np.float64)
     size = first.size
-    kw = dict(smooth=smooth, max_iter=max_iter, tol=tol, fatol=fatol)
+    kw = dict(smooth=smooth, max_iter=max_iter, tol=tol, fatol=fatol, noise=noise)
     screen = np.empty((0, size))
     values = np.empty(0)
     if n_screen and n_starts > 1:
@@ -210,7 +291,7 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
 
     def agreeing():
         best = min(r.fun for r in runs)
-        return sum(r.fun <= best + agree_tol for r in runs)
+        return sum(r.fun <= best + _agreement(agree_tol, noise, best) for r in runs)
 
     extra = 0
     while n_starts > 1 and agreeing() < 2 and extra < n_confirm and len(used) < len(screen):
@@ -229,6 +310,7 @@ def multistart(objective, first, *, n_starts, n_screen, rng, smooth, max_iter, t
     problems = []
     # a run that reached the best value and met its criterion vouches for the best one (an
     # L-BFGS-B line search can end "abnormally" a rounding error away from the optimum)
+    agree_tol = _agreement(agree_tol, noise, best.fun)
     if not any(r.success for r in runs if r.fun <= best.fun + agree_tol):
         problems.append(f"the best start did not converge ({best.message})")
     if n_starts == 1:

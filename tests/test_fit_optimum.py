@@ -279,3 +279,51 @@ def test_the_simulated_likelihood_skips_trials_at_a_threshold_out_of_reach(monke
     # fails for the reason the trials would have given
     assert lik.negative(dict(p, theta=500.0)) == 1e300 and calls == [8.0]
     assert lik.n_failed == 1 and "decides in no trial within max_steps" in lik.first_failure
+
+
+def _rough_bowl(centre, A, level=1300.0, noise=3e-6, cell=1e-5):
+    """``level + (u - c)^T A (u - c) / 2`` plus jumps: a deterministic value in
+    ``+-noise * level`` on each cell of side ``cell`` (a likelihood smooth only to a
+    tolerance, as the exact engine's on three options)."""
+    def f(u):
+        key = tuple(int(k) for k in np.floor(np.asarray(u) / cell))
+        jump = np.random.default_rng(abs(hash(key)) % 2**32).uniform(-1.0, 1.0)
+        d = np.asarray(u) - centre
+        return level + 0.5 * float(d @ A @ d) + noise * level * jump
+    return f
+
+
+def test_a_rough_objective_is_optimised_with_steps_above_its_noise():
+    # curvatures of 1e4 to 4e4: standard errors of 0.005-0.01 in unit-cube coordinates
+    centre = np.array([0.42, 0.61])
+    A = np.array([[1.0e4, 6.0e3], [6.0e3, 4.0e4]])
+    f = _rough_bowl(centre, A)
+    se = np.sqrt(np.diag(np.linalg.inv(A)))
+    for start in (np.array([0.3, 0.3]), np.array([0.8, 0.7]), np.array([0.5, 0.45])):
+        run = _local(f, start, smooth=True, max_iter=500, tol=1e-10, fatol=1e-8, noise=3e-6)
+        assert run.success, run.message
+        # within a tenth of a standard error of the minimum
+        assert np.all(np.abs(run.x - centre) <= 0.1 * se), (run.x, se)
+    out = multistart(f, np.array([0.3, 0.3]), n_starts=3, n_screen=8,
+                     rng=np.random.default_rng(0), smooth=True, max_iter=500, tol=1e-10,
+                     fatol=1e-8, agree_tol=0.01, noise=3e-6)
+    assert out.converged, out.problems
+
+
+def test_the_hessian_of_a_rough_likelihood_is_taken_over_a_standard_error():
+    from mdft._differences import hessian as _hessian, rough_steps as _rough_steps
+
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        centre = rng.uniform(0.3, 0.7, size=3)
+        B = rng.normal(size=(3, 3))
+        A = 10.0 ** rng.uniform(3.0, 5.0) * (B @ B.T / 3.0 + np.eye(3))
+        f = _rough_bowl(centre, A)
+        idx = np.arange(3)
+        steps = _rough_steps(f, centre, idx)
+        H = _hessian(f, centre, idx, steps)
+        se, se_true = np.sqrt(np.diag(np.linalg.inv(H))), np.sqrt(np.diag(np.linalg.inv(A)))
+        np.testing.assert_allclose(se, se_true, rtol=0.02)
+        # the default step differences the jumps instead
+        H_default = _hessian(f, centre, idx, np.full(3, 1e-4))
+        assert np.max(np.abs(np.diag(H_default) / np.diag(A) - 1.0)) > 0.2

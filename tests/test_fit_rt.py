@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mdft
+from mdft.likelihood import PLANE_NOISE
 
 M2 = np.array([[1.0, 3.0], [3.0, 1.0]])
 KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
@@ -179,15 +180,22 @@ def test_choice_data_response_times_are_read_only_copies():
         d.response_times[0][0][0] = 1.0
 
 
-# one iteration from one start on purpose: the fit only has to carry the exact likelihood
-@pytest.mark.filterwarnings("ignore::mdft.FitConvergenceWarning")
-def test_exact_joint_likelihood_for_three_options():
-    M3 = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+M3 = np.array([[1.0, 3.0], [3.0, 1.0], [2.0, 2.0]])
+
+
+def _triple_trials():
+    """300 trials of a triple with their decision steps, and the model they came from."""
     m = mdft.MDFTModel(M3, [0.5, 0.5], sigma2=1.0, **KNOWN)
     sim = mdft.simulate(m, 300, stopping=mdft.Threshold(6.0, MAX_STEPS), rng=5)
     assert sim.n_undecided == 0
-    data = mdft.ChoiceData.from_trials([[0, 1, 2]] * 300, sim.choices,
-                                       response_times=sim.decision_steps)
+    return m, mdft.ChoiceData.from_trials([[0, 1, 2]] * 300, sim.choices,
+                                          response_times=sim.decision_steps)
+
+
+# one iteration from one start on purpose: the fit only has to carry the exact likelihood
+@pytest.mark.filterwarnings("ignore::mdft.FitConvergenceWarning")
+def test_exact_joint_likelihood_for_three_options():
+    m, data = _triple_trials()
     res = mdft.fit(data, M3, stopping=mdft.Threshold(6.0, MAX_STEPS), params=["sigma2"],
                    fixed=dict(w=[0.5, 0.5], **KNOWN), method="threshold_exact", n_starts=1,
                    max_iter=1, rng=0)
@@ -198,3 +206,21 @@ def test_exact_joint_likelihood_for_three_options():
         assert ref.engine == "plane"
         direct = _joint_log_likelihood(ref, data.response_times[0])
         assert res.log_likelihood_at(dict(sigma2=s2)) == pytest.approx(direct, rel=1e-10)
+
+
+def test_exact_fit_of_a_triple_finds_its_optimum_and_standard_error():
+    # the exact engine's likelihood on three options is smooth only to about 1e-6 of itself
+    # (mdft.likelihood.PLANE_NOISE): with the Hessian's default step of 1e-4 this fit's
+    # standard error came out at 0.0053, and without the bounds the fit took 914
+    # evaluations and said it had not converged (docs/fitting.md, section 3)
+    _, data = _triple_trials()
+    res = mdft.fit(data, M3, stopping=mdft.Threshold(6.0, MAX_STEPS), params=["sigma2"],
+                   fixed=dict(w=[0.5, 0.5], **KNOWN), bounds=dict(sigma2=(0.5, 2.0)),
+                   method="threshold_exact", n_starts=2, n_screen_per_start=2, rng=0)
+    assert res.converged, res.message
+    x0, ll0 = res.params["sigma2"], res.log_likelihood
+    around = {d: res.log_likelihood_at(dict(sigma2=x0 + d)) for d in (-0.05, -0.01, 0.01, 0.05)}
+    band = 2.0 * PLANE_NOISE * abs(ll0)
+    assert all(ll <= ll0 + band for ll in around.values()), (ll0, around)
+    curvature = (around[-0.05] - 2.0 * ll0 + around[0.05]) / 0.05**2
+    assert res.standard_errors["sigma2"] == pytest.approx(1.0 / np.sqrt(-curvature), rel=0.03)
