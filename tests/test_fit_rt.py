@@ -224,3 +224,19 @@ def test_exact_fit_of_a_triple_finds_its_optimum_and_standard_error():
     assert all(ll <= ll0 + band for ll in around.values()), (ll0, around)
     curvature = (around[-0.05] - 2.0 * ll0 + around[0.05]) / 0.05**2
     assert res.standard_errors["sigma2"] == pytest.approx(1.0 / np.sqrt(-curvature), rel=0.03)
+
+
+def test_the_likelihood_says_how_smooth_it_is():
+    from mdft.likelihood import Likelihood
+
+    _, triple = _triple_trials()
+    pairs = mdft.ChoiceData([[0, 1], [1, 2]], [[3, 2], [1, 4]])
+    stop = mdft.Threshold(6.0, MAX_STEPS)
+
+    def noise(data, engine):
+        return Likelihood(data, stop, engine, use_rt=False, rt_bins=None, n_samples=100,
+                          seed=0, threshold_options=None).noise
+
+    assert noise(triple, "threshold_exact") == PLANE_NOISE > 0.0
+    assert noise(pairs, "threshold_exact") == 0.0  # the binary lattice: smooth to rounding
+    assert noise(triple, "simulation") == 0.0  # a step function, optimised by Nelder-Mead
