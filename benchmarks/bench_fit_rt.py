@@ -5,6 +5,8 @@ Usage::
     python benchmarks/bench_fit_rt.py                         # 12 random models
     python benchmarks/bench_fit_rt.py --models 12 --workers 2 --checkpoint /tmp/rt-fits
     python benchmarks/bench_fit_rt.py --triple --models 6 --trials 600 --workers 2
+    python benchmarks/bench_fit_rt.py --triple --models 8 --trials 300 --fit sigma2,theta \
+        --first-seed 2000 --workers 2
 
 For each random true model (3 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
 sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta = 12 known),
@@ -18,6 +20,12 @@ With ``--triple`` the trials are of the triple of the three options instead, and
 the response times: one with the exact engine (``method="threshold_exact"``, the three-option
 chain's ``rt_pmf``, every decision step), one with the simulated likelihood (``method=
 "simulation"``, binned times); the table gives their errors side by side.
+
+``--fit`` names the parameters fitted (default all three); the others are held at the truth.
+``--first-seed`` sets the seed of the first model (the next ones follow it). After the table,
+each fit that reports standard errors is checked against the truth: its log-likelihood less
+the truth's (never below 0 at the maximum), and each fitted parameter's distance from the
+truth in standard errors.
 """
 
 from __future__ import annotations
@@ -72,9 +80,16 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--checkpoint", default=None)
+    ap.add_argument("--fit", default=",".join(PARAMS),
+                    help="parameters fitted, comma-separated (the others held at the truth)")
+    ap.add_argument("--first-seed", type=int, default=1000)
     args = ap.parse_args(argv)
+    fitted = [p for p in args.fit.split(",") if p]
+    if not fitted or any(p not in PARAMS for p in fitted):
+        ap.error(f"--fit must name some of {', '.join(PARAMS)} (got {args.fit!r})")
     subsets = [[0, 1, 2]] if args.triple else PAIRS
-    models = [random_model(1000 + i, args.trials, subsets) for i in range(args.models)]
+    models = [random_model(args.first_seed + i, args.trials, subsets)
+              for i in range(args.models)]
     # the two fits of each model: (key, label, fit arguments)
     kinds = ([("exact", "exact engine", dict(response_times=True, method="threshold_exact")),
               ("sim", "simulated", dict(response_times=True, method="simulation"))]
@@ -83,17 +98,21 @@ def main(argv=None):
               ("choice", "choices only", dict(response_times=False))])
     problems = {}
     for i, (data, M, truth) in enumerate(models):
+        # the parameters not fitted are held at the truth (theta through the stopping rule)
+        held = {p: truth[p] for p in ("w", "sigma2") if p not in fitted}
+        theta = 10.0 if "theta" in fitted else truth["theta"]
         for key, _, extra in kinds:
-            problems[f"{i}-{key}"] = dict(data=data, M=M, **extra)
+            problems[f"{i}-{key}"] = dict(data=data, M=M, fixed=dict(KNOWN, **held),
+                                          stopping=mdft.Threshold(theta, MAX_STEPS), **extra)
     t0 = time.perf_counter()
-    many = mdft.fit_many(problems, rng=0, stopping=mdft.Threshold(10.0, MAX_STEPS),
-                         params=PARAMS, fixed=KNOWN, n_starts=args.starts, n_screen_per_start=4,
+    many = mdft.fit_many(problems, rng=0, params=fitted, n_starts=args.starts,
+                         n_screen_per_start=4,
                          tol=1e-6, bounds=dict(sigma2=(0.2, 8.0), theta=(2.0, 30.0)),
                          executor="serial" if args.workers == 1 else None,
                          n_workers=args.workers, checkpoint=args.checkpoint)
     elapsed = time.perf_counter() - t0
     what = "trials of the triple" if args.triple else "trials per pair"
-    print(f"{args.models} random 3-option models, {args.trials} {what}; fitted {PARAMS}; "
+    print(f"{args.models} random 3-option models, {args.trials} {what}; fitted {fitted}; "
           f"{elapsed / len(problems):.0f} s per fit")
     head = f"{'model':>5s} {'w0':>6s} {'sigma2':>7s} {'theta':>6s} |"
     for _, label, _ in kinds:
@@ -116,6 +135,32 @@ def main(argv=None):
         print(f"{label:<22s} median |dw0| {med[0]:.3f}, sigma2 {med[1]:.1%}, theta "
               f"{med[2]:.1%}; largest {mx[0]:.3f}, {mx[1]:.1%}, {mx[2]:.1%}; "
               f"{n_conv} of {len(models)} converged")
+    check_against_truth(many, models, kinds, fitted)
+
+
+def check_against_truth(many, models, kinds, fitted):
+    """Each fit with standard errors: its log-likelihood less the truth's, its evaluations,
+    and how many standard errors each fitted parameter lies from the truth."""
+    names = {"w": "w0", "sigma2": "sigma2", "theta": "theta"}
+    zs = []
+    for key, label, _ in kinds:
+        for i, (_, _, truth) in enumerate(models):
+            res = many[f"{i}-{key}"]
+            ses = [res.standard_errors[p][0] if p == "w" else res.standard_errors[p]
+                   for p in fitted]
+            if not np.all(np.isfinite(ses)):
+                continue
+            gain = res.log_likelihood - res.log_likelihood_at({p: truth[p] for p in fitted})
+            z = [((res.params[p][0] - truth[p][0]) if p == "w" else
+                  (res.params[p] - truth[p])) / se for p, se in zip(fitted, ses)]
+            zs += z
+            print(f"{label} {i}: log-likelihood - truth's {gain:+.2f}, "
+                  f"{res.n_evaluations} evaluations, from the truth in standard errors: "
+                  + ", ".join(f"{names[p]} {v:+.2f}" for p, v in zip(fitted, z)))
+    if zs:
+        zs = np.abs(np.array(zs))
+        print(f"{len(zs)} estimates: root mean square {np.sqrt(np.mean(zs**2)):.2f} standard "
+              f"errors from the truth, largest {zs.max():.2f}")
 
 
 if __name__ == "__main__":
