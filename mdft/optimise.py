@@ -49,6 +49,9 @@ ROUGH_STEP = 3e-3
 #: itself): near the optimum the gradient, differenced over ROUGH_STEP, locates it better
 #: than values within the noise can.
 ROUGH_FTOL = 0.1
+#: The Newton step's check of a rough run: values more than this above the run's end mean
+#: the objective is not a bowl about it (see :func:`newton_gain`).
+NEWTON_RISE = 100.0
 
 
 @dataclass(frozen=True)
@@ -114,12 +117,23 @@ def newton_gain(objective, x, f):
     ``g^T H^-1 g / 2`` over the coordinates at least :data:`mdft._differences.ROUGH_MIN`
     from the faces of the cube, with the gradient differenced over :data:`ROUGH_STEP` and
     the Hessian over about a standard error (:func:`mdft._differences.rough_steps`); None
-    where no coordinate is that far in or the Hessian is not positive definite."""
+    where no coordinate is that far in, where a value differenced rises more than
+    :data:`NEWTON_RISE` above ``f`` (the steps of about a standard error rise by about 1/2:
+    the objective is no bowl there, e.g. impossible beyond a wall), or where the Hessian is
+    not positive definite."""
     idx = np.array([i for i in range(x.size) if room(x, i) >= ROUGH_MIN], dtype=np.intp)
     if not idx.size:
         return None
-    g = gradient(objective, x, idx, [min(ROUGH_STEP, room(x, i)) for i in idx])
-    H = hessian(objective, x, idx, rough_steps(objective, x, idx, f), f)
+    values = []
+
+    def logged(u):
+        values.append(float(objective(u)))
+        return values[-1]
+
+    g = gradient(logged, x, idx, [min(ROUGH_STEP, room(x, i)) for i in idx])
+    H = hessian(logged, x, idx, rough_steps(logged, x, idx, f), f)
+    if not all(math.isfinite(v) and v - f <= NEWTON_RISE for v in values):
+        return None  # not a bowl about x (an impossible value, a wall, a cliff)
     try:
         np.linalg.cholesky(H)
     except np.linalg.LinAlgError:
