@@ -63,8 +63,10 @@ def standard_errors(negloglik, layout, u, smooth, step=1e-4, bound_tol=1e-3, noi
     bad = ~interior
     idx = np.flatnonzero(interior)
     if idx.size:
-        steps = rough_steps(negloglik, u, idx) if noise > 0.0 else np.full(idx.size, step)
-        H = hessian(negloglik, u, idx, steps)
+        f0 = negloglik(u)  # once, for the steps and the Hessian
+        steps = (rough_steps(negloglik, u, idx, f0) if noise > 0.0
+                 else np.full(idx.size, step))
+        H = hessian(negloglik, u, idx, steps, f0)
         # A coordinate that does not move the likelihood at all is not identified.
         d = np.diag(H)
         flat = d <= 1e-10 * max(float(np.max(np.abs(d))), 1e-300)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import mdft
+from mdft._differences import hessian, rough_steps
 from mdft.likelihood import INFEASIBLE
 from mdft.optimise import _local, multistart
 
@@ -317,7 +318,6 @@ def test_a_rough_objective_is_optimised_with_steps_above_its_noise():
 
 
 def test_the_hessian_of_a_rough_likelihood_is_taken_over_a_standard_error():
-    from mdft._differences import hessian as _hessian, rough_steps as _rough_steps
 
     rng = np.random.default_rng(7)
     for _ in range(5):
@@ -326,10 +326,10 @@ def test_the_hessian_of_a_rough_likelihood_is_taken_over_a_standard_error():
         A = 10.0 ** rng.uniform(3.0, 5.0) * (B @ B.T / 3.0 + np.eye(3))
         f = _rough_bowl(centre, A)
         idx = np.arange(3)
-        steps = _rough_steps(f, centre, idx)
-        H = _hessian(f, centre, idx, steps)
+        steps = rough_steps(f, centre, idx)
+        H = hessian(f, centre, idx, steps)
         se, se_true = np.sqrt(np.diag(np.linalg.inv(H))), np.sqrt(np.diag(np.linalg.inv(A)))
         np.testing.assert_allclose(se, se_true, rtol=0.02)
         # the default step differences the jumps instead
-        H_default = _hessian(f, centre, idx, np.full(3, 1e-4))
+        H_default = hessian(f, centre, idx, np.full(3, 1e-4))
         assert np.max(np.abs(np.diag(H_default) / np.diag(A) - 1.0)) > 0.2

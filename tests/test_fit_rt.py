@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mdft
-from mdft.likelihood import PLANE_NOISE
+from mdft.likelihood import PLANE_NOISE, Likelihood
 
 M2 = np.array([[1.0, 3.0], [3.0, 1.0]])
 KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
@@ -227,8 +227,6 @@ def test_exact_fit_of_a_triple_finds_its_optimum_and_standard_error():
 
 
 def test_the_likelihood_says_how_smooth_it_is():
-    from mdft.likelihood import Likelihood
-
     _, triple = _triple_trials()
     pairs = mdft.ChoiceData([[0, 1], [1, 2]], [[3, 2], [1, 4]])
     stop = mdft.Threshold(6.0, MAX_STEPS)
