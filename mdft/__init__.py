@@ -36,7 +36,8 @@ from .effects import (
 )
 from .fit import ChoiceData, FitConvergenceWarning, FitResult, fit
 from .fit_many import FitManyResult, fit_many
-from .threshold_exact import ThresholdProbabilities, threshold_probabilities
+from .threshold_exact import (ThresholdProbabilities, ThresholdToleranceError,
+                              threshold_probabilities)
 from .warmup import WarmupReport, warmup
 
 __all__ = [
@@ -70,6 +71,7 @@ __all__ = [
     "context_effects",
     "default_stopping",
     "ThresholdProbabilities",
+    "ThresholdToleranceError",
     "threshold_probabilities",
     "WarmupReport",
     "warmup",

@@ -22,8 +22,8 @@ from ._fit_params import DEFAULT_BOUNDS, PARAMETERS, Layout, check_names, resolv
 from ._validation import as_count, as_float_array, as_generator, as_scalar
 from .choice_data import ChoiceData
 from .fit_result import FitResult
-from .likelihood import (INFEASIBLE, Likelihood, check_threshold_options, choose_engine,
-                         quiet_model, stopping_kind)
+from .likelihood import (INFEASIBLE, LOOSER_TOLERANCES, Likelihood, check_threshold_options,
+                         choose_engine, quiet_model, stopping_kind)
 from .model import GROWTH_LIMIT, REFERENCE_STEPS, growth_factor
 from .optimise import multistart
 
@@ -129,16 +129,20 @@ def fit(
         Engine for threshold stopping; ``"auto"`` uses ``mdft.threshold_probabilities`` when
         every subset has 2 options (0.01-0.12 s per subset and evaluation) and simulation
         otherwise: with 3 options the exact engine takes about 0.2 s per subset and
-        evaluation at the median, seconds on some models, and refuses the models it cannot
-        vouch for (infeasible points for the optimiser), so a fit takes minutes (ask for it
-        with ``"threshold_exact"``; ``docs/fitting.md``, section 7). That likelihood is
-        smooth only to about 1e-6 of itself; the optimiser's steps and the standard errors'
-        Hessian are sized for it (section 3). Fixed time always uses
+        evaluation at the median, seconds on some models, so a fit takes minutes (ask for it
+        with ``"threshold_exact"``; ``docs/fitting.md``, section 7). Where it cannot meet
+        its default tolerances it tries again at ``atol=3e-3, rt_rtol=1e-2`` (the message
+        counts those evaluations), and only a model it cannot vouch for at those is
+        infeasible for the optimiser (section 3, "Where the exact engine cannot vouch").
+        That likelihood is smooth only to about 1e-6 of itself; the optimiser's steps and
+        the standard errors' Hessian are sized for it (section 3). Fixed time always uses
         the closed form.
     threshold_options : dict, optional
         Extra keyword arguments of ``mdft.threshold_probabilities`` (e.g. ``atol``), for
         the ``"threshold_exact"`` engine only: given with another engine, or with a name
-        that is not such an argument, it raises ``ValueError``.
+        that is not such an argument, it raises ``ValueError``. Tolerances given here
+        (``atol`` or ``rt_rtol``) are kept: the engine then makes no second try at looser
+        ones.
 
     Returns
     -------
@@ -258,6 +262,7 @@ def fit(
     on_bound = tuple(dict.fromkeys(layout.block_of(i) for i in out.on_bound))
     problems = list(out.problems)
     lik.negative(p_hat)
+    optimum_loosened = lik.last_loosened
     if lik.last_warnings:
         # the exact engine cannot vouch for its answer at the optimum
         problems.append("the likelihood engine warned at the optimum: "
@@ -284,6 +289,13 @@ def fit(
         # reported, not fatal: corners of the box where preferences overflow are common
         message += (f"; {lik.n_failed} of {lik.n_evaluations} likelihood evaluations failed "
                     f"and counted as impossible (first: {lik.first_failure})")
+    if lik.n_loosened:
+        # vouched for, at tolerances about three times the defaults: reported, not a failure
+        where = ", the optimum's among them," if optimum_loosened else ""
+        message += (f"; the exact engine vouched for {lik.n_loosened} of {lik.n_evaluations} "
+                    f"likelihood evaluations{where} only at atol="
+                    f"{LOOSER_TOLERANCES['atol']:g}, rt_rtol={LOOSER_TOLERANCES['rt_rtol']:g} "
+                    "(it could not meet its defaults there)")
     if not converged and not getattr(quiet, "on", False):
         warnings.warn(
             f"the fit may not have found the maximum: {message}; raise n_starts or max_iter, "

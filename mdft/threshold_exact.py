@@ -36,9 +36,9 @@ from ._threads import fitted_to_the_load
 from ._threshold_solve import error_estimate, own_error, solve_chain, with_errors
 from ._validation import MAX_STEPS, MAX_THETA, as_count, as_generator, as_scalar
 from .model import MDFTModel
-from .threshold_result import ThresholdProbabilities
+from .threshold_result import ThresholdProbabilities, ThresholdToleranceError
 
-__all__ = ["ThresholdProbabilities", "threshold_probabilities"]
+__all__ = ["ThresholdProbabilities", "ThresholdToleranceError", "threshold_probabilities"]
 
 logger = logging.getLogger(__name__)
 
@@ -222,6 +222,10 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
         ``max_states`` states (or, judged from the last three comparisons,
         within the finer grids still possible) and the fallback is off or over
         its budget.
+    ThresholdToleranceError
+        The last case with the fallback off (``fallback="raise"`` or
+        ``method="solve"``): the chain ran and its estimated error stayed
+        beyond ``atol`` or ``rt_rtol``. A subclass of ``ValueError``.
 
     Notes
     -----
@@ -475,7 +479,7 @@ def _after_refusal(model, theta, max_steps, atol, rt_rtol, rng, fallback, method
             "n_samples, stopping=mdft.Threshold(theta))"
         )
     raise_what = "atol or rt_rtol" if closure_bound else "max_states, atol or rt_rtol"
-    raise ValueError(
+    raise ThresholdToleranceError(
         "threshold_probabilities cannot vouch for this model within max_states="
         f"{max_states}: {reason}. Raise {raise_what}, or estimate threshold "
         "stopping with mdft.simulate(model, n_samples, stopping=mdft.Threshold(theta))"

@@ -9,7 +9,19 @@ import numpy as np
 
 from ._export import builtin
 
-__all__ = ["ThresholdProbabilities"]
+__all__ = ["ThresholdProbabilities", "ThresholdToleranceError"]
+
+
+class ThresholdToleranceError(ValueError):
+    """:func:`mdft.threshold_probabilities` could not meet ``atol`` and ``rt_rtol`` with the
+    chain and was told not to simulate (``fallback="raise"``, or ``method="solve"``).
+
+    A ``ValueError``, raised where the chain ran and refused: its error estimate (the grid's
+    or the moment closure's term) stayed beyond the tolerances within ``max_states``. Looser
+    tolerances may be met where these were not; the likelihood of :func:`mdft.fit` asks for
+    them then (``docs/fitting.md``, "Where the exact engine cannot vouch"). A model that no
+    chain can answer (more than three options, no noise, ...) raises a plain ``ValueError``.
+    """
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,14 @@
 """Response times in the likelihood of mdft.fit: the joint likelihood of choice and
 decision step, binned times, identification of theta and sigma2, bad input."""
 
+import re
 import warnings
 
 import numpy as np
 import pytest
 
 import mdft
-from mdft.likelihood import PLANE_NOISE, Likelihood
+from mdft.likelihood import INFEASIBLE, LOOSER_TOLERANCES, PLANE_NOISE, Likelihood
 
 M2 = np.array([[1.0, 3.0], [3.0, 1.0]])
 KNOWN = dict(phi1=0.022, phi2=0.05, beta=12.0)
@@ -224,6 +225,71 @@ def test_exact_fit_of_a_triple_finds_its_optimum_and_standard_error():
     assert all(ll <= ll0 + band for ll in around.values()), (ll0, around)
     curvature = (around[-0.05] - 2.0 * ll0 + around[0.05]) / 0.05**2
     assert res.standard_errors["sigma2"] == pytest.approx(1.0 / np.sqrt(-curvature), rel=0.03)
+
+
+# a triple of benchmarks/bench_fit_rt.py (model 3, seed 1003): over a whole region of sigma2
+# and theta about its truth the moment closure's term sits at the default tolerances, and
+# the exact engine refuses them (docs/fitting.md, "Where the exact engine cannot vouch")
+M_AT_THE_DEFAULTS = np.array([[0.5633, 0.7701], [1.4840, 1.9824], [2.2563, 2.1693]])
+W_AT_THE_DEFAULTS = np.array([0.4362, 0.5638])
+
+
+def _trials_at_the_defaults():
+    """200 trials of that triple at ``sigma2 = 1.8``, ``theta = 14.7``, and the model."""
+    m = mdft.MDFTModel(M_AT_THE_DEFAULTS, W_AT_THE_DEFAULTS, sigma2=1.8, **KNOWN)
+    sim = mdft.simulate(m, 200, stopping=mdft.Threshold(14.7, MAX_STEPS), rng=3)
+    assert sim.n_undecided == 0
+    return m, mdft.ChoiceData.from_trials([[0, 1, 2]] * 200, sim.choices,
+                                          response_times=sim.decision_steps)
+
+
+def test_where_the_exact_engine_cannot_meet_its_defaults_the_likelihood_asks_looser_ones():
+    m, data = _trials_at_the_defaults()
+    with pytest.raises(mdft.ThresholdToleranceError, match="atol=0.001"):
+        mdft.threshold_probabilities(m, 14.7, max_steps=MAX_STEPS, fallback="raise")
+    looser = mdft.threshold_probabilities(m, 14.7, max_steps=MAX_STEPS, fallback="raise",
+                                          **LOOSER_TOLERANCES)
+    assert looser.engine == "plane"
+    stop = mdft.Threshold(14.7, MAX_STEPS)
+    p = dict(M=M_AT_THE_DEFAULTS, w=W_AT_THE_DEFAULTS, sigma2=1.8, theta=14.7, **KNOWN)
+
+    def likelihood(options):
+        return Likelihood(data, stop, "threshold_exact", use_rt=True, rt_bins=None,
+                          n_samples=0, seed=0, threshold_options=options)
+
+    lik = likelihood(None)
+    direct = _joint_log_likelihood(looser, data.response_times[0])
+    assert lik.log_likelihood(p) == pytest.approx(direct, rel=1e-12)
+    assert (lik.n_loosened, lik.last_loosened, lik.n_failed) == (1, True, 0)
+    # tolerances the caller set are kept: no second try, an impossible point as before
+    strict = likelihood(dict(atol=1e-3))
+    assert strict.negative(p) == INFEASIBLE and strict.n_loosened == 0
+    assert strict.first_failure.startswith("ThresholdToleranceError")
+
+
+def test_a_fit_says_which_evaluations_were_answered_at_looser_tolerances(trials, monkeypatch):
+    # the binary lattice made to refuse its defaults wherever sigma2 > 1.4 (the truth is 1.5):
+    # the fit is carried there by the second tries, and its message says how many, the
+    # optimum's included, and its log-likelihood is the looser one's
+    real = mdft.threshold_probabilities
+
+    def refusing(model, theta, **options):
+        if model.sigma2 > 1.4 and "atol" not in options:
+            raise mdft.ThresholdToleranceError("refused at the defaults (a test)")
+        return real(model, theta, **options)
+
+    monkeypatch.setattr(mdft.likelihood, "_threshold_exact_function", lambda: refusing)
+    res = mdft.fit(trials, M2, stopping=mdft.Threshold(TRUTH["theta"], MAX_STEPS),
+                   params=["sigma2"], fixed=dict(w=TRUTH["w"], **KNOWN), rng=0)
+    assert res.converged and res.params["sigma2"] > 1.4, res.message
+    found = re.search(r"vouched for (\d+) of (\d+) likelihood evaluations, the optimum's "
+                      r"among them, only at atol=0.003, rt_rtol=0.01", res.message)
+    assert found, res.message
+    assert 0 < int(found[1]) < int(found[2]) and "failed" not in res.message
+    ref = real(model(sigma2=res.params["sigma2"]), TRUTH["theta"], max_steps=MAX_STEPS,
+               **LOOSER_TOLERANCES)
+    assert res.log_likelihood == pytest.approx(
+        _joint_log_likelihood(ref, trials.response_times[0]), rel=1e-12)
 
 
 def test_the_likelihood_says_how_smooth_it_is():

@@ -250,10 +250,16 @@ def test_large_threshold_is_answered_or_refused_never_wrong():
 
 
 def test_budget_too_small_raises_a_clear_error():
+    # a refusal of the chain that ran is a ThresholdToleranceError (a ValueError): looser
+    # tolerances or more states may be met; a model no chain answers is another ValueError
     model = canonical(SETS["compromise"]).replace(sigma2=0.1)
-    with pytest.raises(ValueError, match=r"cannot vouch for this model within max_states=50.*"
-                                         r"mdft\.simulate"):
+    with pytest.raises(mdft.ThresholdToleranceError,
+                       match=r"cannot vouch for this model within max_states=50.*mdft\.simulate"):
         threshold_probabilities(model, 17.5, max_states=50, fallback="raise")
+    assert issubclass(mdft.ThresholdToleranceError, ValueError)
+    with pytest.raises(ValueError, match="no noise") as info:
+        threshold_probabilities(model.replace(sigma2=0.0), 17.5, fallback="raise")
+    assert not isinstance(info.value, mdft.ThresholdToleranceError)
 
 
 def test_tight_tolerance_refines_or_raises():
