@@ -11,8 +11,9 @@ Usage::
 For each random true model (3 options on 2 attributes uniform on [0, 3], w[0] in [0.3, 0.7],
 sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta = 12 known),
 ``--trials`` trials of each of the three pairs of options are simulated with threshold
-stopping, and ``w``, ``sigma2`` and ``theta`` are fitted twice from the same trials: with the joint likelihood of choice and decision step
-(the exact engine's ``rt_pmf``) and from the choices alone. Reported per model and parameter:
+stopping, and ``w``, ``sigma2`` and ``theta`` are fitted twice from the same trials: with the
+joint likelihood of choice and decision step (the exact engine's ``rt_pmf``) and from the
+choices alone. Reported per model and parameter:
 the absolute error of ``w[0]`` and the relative errors of ``sigma2`` and ``theta``, and their
 medians. The fits run through ``mdft.fit_many``; with ``--checkpoint`` a re-run resumes.
 

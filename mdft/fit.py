@@ -164,7 +164,8 @@ def fit(
     ``M`` entry by entry with its first row held fixed (adding a constant to a column of
     ``M`` changes neither ``C M`` nor the distances, so one row must anchor it). Smooth
     likelihoods (closed form, exact threshold method) use L-BFGS-B with central
-    finite-difference gradients; a simulated likelihood uses bounded Nelder-Mead with common random numbers.
+    finite-difference gradients; a simulated likelihood uses bounded Nelder-Mead with common
+    random numbers.
     Standard errors come from the inverse of the central-difference Hessian of the negative
     log-likelihood, mapped to natural units by the delta method; they are NaN (with a reason
     in ``se_notes``) for estimates on a bound, where the Hessian is not positive definite

@@ -153,10 +153,11 @@ def _as_steps(data, max_steps):
         row = []
         for i, t in enumerate(per):
             if t.size and (np.any(t != np.round(t)) or t.min() < 1):
+                bad = t[(t != np.round(t)) | (t < 1)][0]
                 raise ValueError(
                     f"response_times[{k}][{i}] must be decision steps, whole numbers >= 1, to "
-                    f"enter the likelihood (got values such as {t[(t != np.round(t)) | (t < 1)][0]:g}); "
-                    "convert times to steps first, or pass response_times=False to fit choices only"
+                    f"enter the likelihood (got values such as {bad:g}); convert times to "
+                    "steps first, or pass response_times=False to fit choices only"
                 )
             if t.size and t.max() > max_steps:
                 raise ValueError(
