@@ -228,9 +228,10 @@ def test_exact_fit_of_a_triple_finds_its_optimum_and_standard_error():
     assert res.standard_errors["sigma2"] == pytest.approx(1.0 / np.sqrt(-curvature), rel=0.03)
 
 
-# a triple of benchmarks/bench_fit_rt.py (model 3, seed 1003): over a whole region of sigma2
-# and theta about its truth the moment closure's term sits at the default tolerances, and
-# the exact engine refuses them (docs/fitting.md, "Where the exact engine cannot vouch")
+# a triple of benchmarks/bench_fit_rt.py (model 3, seed 1003; M and w to four decimals):
+# over a whole region of sigma2 and theta about its truth the moment closure's term sits at
+# the default tolerances, and the exact engine refuses them (docs/fitting.md, "Where the
+# exact engine cannot vouch")
 M_AT_THE_DEFAULTS = np.array([[0.5633, 0.7701], [1.4840, 1.9824], [2.2563, 2.1693]])
 W_AT_THE_DEFAULTS = np.array([0.4362, 0.5638])
 
