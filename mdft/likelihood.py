@@ -289,11 +289,11 @@ class Likelihood:
         theta, max_steps = self._threshold(p)
         if self.engine == "threshold_exact":
             fn = _threshold_exact_function()
-            model = quiet_model(Ms, p)
             # a likelihood must not switch to a noisy method mid-optimisation
             options = {"fallback": "raise", **self.threshold_options}
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", RuntimeWarning)
+                model = quiet_model(Ms, p)
                 try:
                     res = fn(model, theta, max_steps=max_steps, **options)
                 except ThresholdToleranceError:
