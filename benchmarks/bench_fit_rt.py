@@ -13,9 +13,8 @@ sigma2 in [0.5, 3], threshold theta in [5, 15]; phi1 = 0.022, phi2 = 0.05, beta 
 ``--trials`` trials of each of the three pairs of options are simulated with threshold
 stopping, and ``w``, ``sigma2`` and ``theta`` are fitted twice from the same trials: with the
 joint likelihood of choice and decision step (the exact engine's ``rt_pmf``) and from the
-choices alone. Reported per model and parameter:
-the absolute error of ``w[0]`` and the relative errors of ``sigma2`` and ``theta``, and their
-medians. The fits run through ``mdft.fit_many``; with ``--checkpoint`` a re-run resumes.
+choices alone. Reported per model and parameter: the absolute error of ``w[0]`` and the
+relative errors of ``sigma2`` and ``theta``, and their medians. The fits run through ``mdft.fit_many``; with ``--checkpoint`` a re-run resumes.
 
 With ``--triple`` the trials are of the triple of the three options instead, and both fits use
 the response times: one with the exact engine (``method="threshold_exact"``, the three-option

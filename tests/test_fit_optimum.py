@@ -318,7 +318,6 @@ def test_a_rough_objective_is_optimised_with_steps_above_its_noise():
 
 
 def test_the_hessian_of_a_rough_likelihood_is_taken_over_a_standard_error():
-
     rng = np.random.default_rng(7)
     for _ in range(5):
         centre = rng.uniform(0.3, 0.7, size=3)
