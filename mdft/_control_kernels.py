@@ -4,23 +4,36 @@ Nothing here validates its input: :func:`mdft.simulate._controlled_trials` build
 arguments from a checked model and calls these functions.
 
 A trial of two or three options runs as :func:`mdft._kernels.reduced_trial` does (the same
-draws and arithmetic, so the same choices and steps from the same stream) and also sums,
-over its steps ``t = 1 .. T``, the products ``m(y(t-1), t) xi(t)``:
+draws and arithmetic, so the same choices and steps from the same stream) and also records
+two kinds of sums over its steps ``t = 1 .. T``:
 
-- ``xi(t)`` is the step's random part in the zero-sum plane, ``E (C M (e_j - w) + L z)``:
-  the attention's deviation from its mean and the noise, centred, so that its expectation
-  given everything before step ``t`` is zero;
-- ``m`` runs over :data:`N_MONOMIALS` monomials of the plane position before the step,
-  ``y = E (P(t-1) - P(0)) / scale``: those of degree at most 3, and ``t / time_scale``
-  times those of degree at most 2.
+- the products ``m(P(t-1), t) xi(t)``. ``xi(t)`` is the step's random part in the zero-sum
+  plane, ``E (C M (e_j - w) + L z)``: the attention's deviation from its mean and the noise,
+  centred, so that its expectation given everything before step ``t`` is zero. ``m`` runs
+  over :data:`N_MONOMIALS` functions of the state before the step: the monomials of the
+  plane position ``y = E (P(t-1) - P(0)) / theta`` of degree at most 3, ``t / time_scale``
+  times those of degree at most 2, and, for each option ``i``, ``exp(3 d_i)`` and
+  ``exp(9 d_i)`` with ``d_i = (P_i(t-1) - theta) / theta``, each alone and times
+  ``t / time_scale`` (functions that rise steeply near option ``i``'s threshold, where the
+  chance of choosing a rarely chosen option changes fastest);
+- for each option ``i``, its crossing hazard: the step's chance ``a_i(t)`` that ``P_i``
+  reaches ``theta``, given the state before the step and the attribute attended (a normal
+  tail: the noise is the only randomness left), summed over the steps, alone and times
+  ``t``. The trial records ``F_i - sum_t a_i(t)`` and ``T F_i - sum_t t a_i(t)``, ``F_i``
+  the indicator that ``P_i`` ends at or above ``theta``.
 
-Each ``m`` is known before step ``t`` is drawn, so every sum is a martingale stopped at
-the trial's end, a bounded time, and has expectation zero exactly: a control variate
-(:mod:`mdft._control_variates`). Two options use the first plane axis only (the second
-axis is zero, and so are the sums that involve it).
+Each sum's terms have expectation zero given everything before them (``m`` and the state
+are known before ``xi(t)`` and the noise of step ``t`` are drawn; the indicator that step
+``t`` takes ``P_i`` past ``theta`` has expectation ``a_i(t)``), so every sum is a martingale
+stopped at the trial's end, a bounded time, and has expectation zero exactly: a control
+variate (:mod:`mdft._control_variates`). A tail beyond :data:`HAZARD_REACH` standard
+deviations is taken as zero (below 1e-17 a step). Two options use the first plane axis only
+(the second axis is zero, and so are the sums that involve it, and the third option's).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import prange
@@ -29,10 +42,25 @@ from ._kernels import (load_words, reduced_choice, reduced_coefficients, reduced
                        store_words)
 from ._numba import njit, njit_inline, njit_parallel
 
-#: Monomials of the position: ten of degree <= 3, and six of degree <= 2 times the step.
+#: Monomials of the position that multiply both axes of ``xi``: ten of degree <= 3, and six
+#: of degree <= 2 times the step.
 N_MONOMIALS = 16
-#: Control sums a trial records: each monomial times each of the two axes of ``xi``.
-N_CONTROLS = 2 * N_MONOMIALS
+#: Functions of an option's distance to the threshold that multiply that option's part of
+#: ``xi``: for each of three options, two exponentials, alone and times the step.
+N_NEAR = 12
+#: Hazard sums a trial records: each option's, alone and weighted by the step.
+N_HAZARDS = 6
+#: Control sums a trial records: the monomials times each axis of ``xi``, the functions near
+#: the thresholds, then the hazard sums.
+N_CONTROLS = 2 * N_MONOMIALS + N_NEAR + N_HAZARDS
+#: The monomials' sums come first: trials without ``rich`` record only these.
+POLYNOMIAL_CONTROLS = 2 * N_MONOMIALS
+#: A step counts in an option's hazard sum only where the option's mean after the step
+#: lies within this many standard deviations below the threshold (its chance to cross
+#: there is at least 3e-5); so does the crossing itself. Which steps count is known before
+#: their noise is drawn, so the sums stay martingales; the steps left out save the tail's
+#: evaluation where a crossing is least likely.
+HAZARD_REACH = 4.0
 
 
 def gram_size(n_options):
@@ -64,12 +92,108 @@ def _accumulate(acc, m, x):
 
 
 @njit_inline
-def _store(acc, a, b):
-    """Write the sums of the two axes into ``acc``, interleaved: ``acc[2k] = a[k]``,
-    ``acc[2k + 1] = b[k]``."""
+def _near(p0, p1, p2, inv_theta, theta, three):
+    """The six functions of the distances to the threshold, option by option: ``u^3`` and
+    ``u^9``, ``u = max(0, 1 + d)``, ``d = (P_i - theta) / theta`` (like ``exp(3 d)`` and
+    ``exp(9 d)`` near the threshold, in a few products); zero for a third option that is
+    not there."""
+    u0 = max(0.0, 1.0 + (p0 - theta) * inv_theta)
+    u1 = max(0.0, 1.0 + (p1 - theta) * inv_theta)
+    u2 = max(0.0, 1.0 + (p2 - theta) * inv_theta) if three else 0.0
+    c0 = u0 * u0 * u0
+    c1 = u1 * u1 * u1
+    c2 = u2 * u2 * u2
+    return (c0, c0 * c0 * c0, c1, c1 * c1 * c1, c2, c2 * c2 * c2)
+
+
+@njit_inline
+def _accumulate_near(acc, e, tau, x0, x1, x2):
+    """``acc`` plus, for each option ``i``, its two functions ``e`` (alone, then times
+    ``tau``) times its part ``x_i`` of ``xi``: a 12-tuple, option by option."""
+    a0 = e[0] * x0
+    a1 = e[1] * x0
+    a2 = e[2] * x1
+    a3 = e[3] * x1
+    a4 = e[4] * x2
+    a5 = e[5] * x2
+    return (acc[0] + a0, acc[1] + a1, acc[2] + tau * a0, acc[3] + tau * a1,
+            acc[4] + a2, acc[5] + a3, acc[6] + tau * a2, acc[7] + tau * a3,
+            acc[8] + a4, acc[9] + a5, acc[10] + tau * a4, acc[11] + tau * a5)
+
+
+@njit_inline
+def _upper_tail(g):
+    """``Pr(Z >= g)`` for a standard normal ``Z``, to a relative error below 1.2e-7 for every
+    ``g``: the Chebyshev-fitted ``erfc`` of Press et al. (Numerical Recipes, section 6.2),
+    a quarter of the time of ``math.erfc``."""
+    z = abs(g) * 0.7071067811865476
+    t = 1.0 / (1.0 + 0.5 * z)
+    poly = (-1.26551223 + t * (1.00002368 + t * (0.37409196 + t * (0.09678418 + t * (
+        -0.18628806 + t * (0.27886807 + t * (-1.13520398 + t * (1.48851587 + t * (
+            -0.82215223 + t * 0.17087277)))))))))
+    tail = 0.5 * t * math.exp(poly - z * z)
+    return tail if g >= 0.0 else 1.0 - tail
+
+
+@njit_inline
+def _hazard(mean, theta, inv_sd):
+    """``(a, counted)``: whether a step whose mean (given the attribute attended) is
+    ``mean`` counts in the hazard sum (within :data:`HAZARD_REACH` standard deviations below
+    ``theta``; ``inv_sd`` is one over the step noise's standard deviation, zero where there
+    is no noise), and its chance ``a`` to reach ``theta`` (:func:`_upper_tail`; 0 where it
+    does not count)."""
+    if inv_sd <= 0.0:
+        return (1.0, True) if mean >= theta else (0.0, False)
+    g = (theta - mean) * inv_sd
+    if g >= HAZARD_REACH:
+        return 0.0, False
+    return _upper_tail(g), True
+
+
+@njit_inline
+def _store_monomials(acc, a, b):
+    """Write the monomials' sums of the two axes into ``acc``, interleaved:
+    ``acc[2k] = a[k]``, ``acc[2k + 1] = b[k]``."""
     for k in range(N_MONOMIALS):
         acc[2 * k] = a[k]
         acc[2 * k + 1] = b[k]
+
+
+@njit_inline
+def _store(acc, a, b, near, h, ht, crossed, t_end):
+    """Write the trial's sums into ``acc``: the monomials' (:func:`_store_monomials`), the
+    sums near the thresholds, then each option's hazard control ``F_i - h_i`` and its
+    step-weighted one ``t_end F_i - ht_i`` (``crossed``: ``F_i``, the indicator that the
+    last step took option ``i`` past the threshold and counted)."""
+    _store_monomials(acc, a, b)
+    for k in range(N_NEAR):
+        acc[2 * N_MONOMIALS + k] = near[k]
+    base = 2 * N_MONOMIALS + N_NEAR
+    for i in range(3):
+        acc[base + i] = crossed[i] - h[i]
+        acc[base + 3 + i] = t_end * crossed[i] - ht[i]
+
+
+@njit_inline
+def _plane_terms(plane):
+    """The entries of ``plane`` (:func:`controlled_trial`) as scalars: the axes ``E``, the
+    start's coordinates, ``1 / theta``, ``1 / time_scale`` and ``E L``."""
+    return (plane[0, 0], plane[0, 1], plane[0, 2], plane[1, 0], plane[1, 1], plane[1, 2],
+            plane[0, 3], plane[1, 3], plane[0, 4], plane[1, 4],
+            plane[0, 5], plane[0, 6], plane[1, 5], plane[1, 6])
+
+
+@njit_inline
+def _start(P0, three):
+    """The starting preferences as three scalars (the third zero for two options)."""
+    return P0[0], P0[1], (P0[2] if three else 0.0)
+
+
+@njit_inline
+def _zeros16():
+    """Sixteen zeros: the monomials' sums before the first step."""
+    z = 0.0
+    return (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
 
 
 @njit
@@ -77,27 +201,20 @@ def controlled_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, P, acc):
     """:func:`mdft._kernels.reduced_trial`, writing the trial's control sums to ``acc``.
 
     ``plane`` (2, 7 + J) holds, row by row for the two plane axes: ``E`` (columns 0-2,
-    zero where there is no third option), the start's coordinates (column 3), ``1 / scale`` and
-    ``1 / time_scale`` (column 4, rows 0 and 1), ``E L`` padded to two columns (columns
-    5-6) and ``E C M (I - w 1^T)`` (columns 7 on, one per attribute).
+    zero where there is no third option), the start's coordinates (column 3), ``1 / theta``
+    and ``1 / time_scale`` (column 4, rows 0 and 1), ``E L`` padded to two columns (columns
+    5-6) and ``E C M (I - w 1^T)`` (columns 7 on, one per attribute). Only the monomials'
+    sums are written (the first :data:`POLYNOMIAL_CONTROLS` of ``acc``).
     """
     three = P0.shape[0] == 3
     r = L.shape[1]
     (s00, s01, s02, s10, s11, s12, s20, s21, s22,
      l00, l01, l10, l11, l20, l21) = reduced_coefficients(S, L, three)
-    e00, e01, e02 = plane[0, 0], plane[0, 1], plane[0, 2]
-    e10, e11, e12 = plane[1, 0], plane[1, 1], plane[1, 2]
-    c0, c1 = plane[0, 3], plane[1, 3]
-    inv_scale, inv_time = plane[0, 4], plane[1, 4]
-    g00, g01, g10, g11 = plane[0, 5], plane[0, 6], plane[1, 5], plane[1, 6]
+    (e00, e01, e02, e10, e11, e12, c0, c1, inv_scale, inv_time,
+     g00, g01, g10, g11) = _plane_terms(plane)
     w0, w1, w2, w3 = load_words(state)
-    p0 = P0[0]
-    p1 = P0[1]
-    p2 = P0[2] if three else 0.0
-    zero = 0.0
-    a = (zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero,
-         zero, zero)
-    b = a
+    p0, p1, p2 = _start(P0, three)
+    a = b = _zeros16()
     for t in range(1, n_steps + 1):
         y0 = (e00 * p0 + e01 * p1 + e02 * p2 - c0) * inv_scale
         y1 = (e10 * p0 + e11 * p1 + e12 * p2 - c1) * inv_scale
@@ -115,59 +232,137 @@ def controlled_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, P, acc):
         p0, p1 = q0, q1
         if p0 >= theta or p1 >= theta or (three and p2 >= theta):
             store_words(state, w0, w1, w2, w3)
-            _store(acc, a, b)
+            _store_monomials(acc, a, b)
             return reduced_choice(state, P, p0, p1, p2, three), t
     store_words(state, w0, w1, w2, w3)
-    _store(acc, a, b)
+    _store_monomials(acc, a, b)
+    return -1, -1
+
+
+@njit
+def rich_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, opt, P, acc):
+    """:func:`controlled_trial` with every control: the sums near the thresholds and the
+    hazards too (all :data:`N_CONTROLS` written to ``acc``), at about 1.2-2.2 times its
+    cost. ``plane`` is as there; ``opt`` (3, 1 + J) holds, row by row for the options (zero
+    where there is no third): one over the standard deviation of the option's step noise,
+    ``sqrt((L L^T)_ii)`` (column 0; zero without noise), and ``C M (I - w 1^T)`` (columns 1
+    on, one per attribute).
+
+    The step is :func:`mdft._kernels.reduced_trial`'s, its noise added last to the mean
+    given the attribute attended (the same rounding), whose tails are the hazards.
+    """
+    three = P0.shape[0] == 3
+    r = L.shape[1]
+    # the sums near the thresholds and the hazards' (with whether the last step counted)
+    zero = 0.0
+    near = (zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero)
+    e = (zero, zero, zero, zero, zero, zero)
+    n0 = n1 = n2 = False
+    h0 = h1 = h2 = 0.0
+    ht0 = ht1 = ht2 = 0.0
+    (s00, s01, s02, s10, s11, s12, s20, s21, s22,
+     l00, l01, l10, l11, l20, l21) = reduced_coefficients(S, L, three)
+    (e00, e01, e02, e10, e11, e12, c0, c1, inv_scale, inv_time,
+     g00, g01, g10, g11) = _plane_terms(plane)
+    inv0, inv1, inv2 = opt[0, 0], opt[1, 0], opt[2, 0]
+    a = b = _zeros16()
+    w0, w1, w2, w3 = load_words(state)
+    p0, p1, p2 = _start(P0, three)
+    for t in range(1, n_steps + 1):
+        y0 = (e00 * p0 + e01 * p1 + e02 * p2 - c0) * inv_scale
+        y1 = (e10 * p0 + e11 * p1 + e12 * p2 - c1) * inv_scale
+        e = _near(p0, p1, p2, inv_scale, theta, three)
+        j, z0, z1, w0, w1, w2, w3 = reduced_draws(w0, w1, w2, w3, cuts, r)
+        x0 = plane[0, 7 + j] + g00 * z0 + g01 * z1
+        x1 = plane[1, 7 + j] + g10 * z0 + g11 * z1
+        tau = t * inv_time
+        m = _monomials(y0, y1, tau)
+        a = _accumulate(a, m, x0)
+        b = _accumulate(b, m, x1)
+        near = _accumulate_near(near, e, tau, opt[0, 1 + j] + l00 * z0 + l01 * z1,
+                                opt[1, 1 + j] + l10 * z0 + l11 * z1,
+                                opt[2, 1 + j] + l20 * z0 + l21 * z1)
+        # the step of mdft._kernels.reduced_trial, in the same order
+        u0 = s00 * p0 + s01 * p1 + s02 * p2 + CM[0, j]
+        u1 = s10 * p0 + s11 * p1 + s12 * p2 + CM[1, j]
+        k, n0 = _hazard(u0, theta, inv0)
+        h0 += k
+        ht0 += t * k
+        k, n1 = _hazard(u1, theta, inv1)
+        h1 += k
+        ht1 += t * k
+        q0 = u0 + l00 * z0 + l01 * z1
+        q1 = u1 + l10 * z0 + l11 * z1
+        if three:
+            u2 = s20 * p0 + s21 * p1 + s22 * p2 + CM[2, j]
+            k, n2 = _hazard(u2, theta, inv2)
+            h2 += k
+            ht2 += t * k
+            p2 = u2 + l20 * z0 + l21 * z1
+        p0, p1 = q0, q1
+        if p0 >= theta or p1 >= theta or (three and p2 >= theta):
+            store_words(state, w0, w1, w2, w3)
+            crossed = (1.0 if n0 and p0 >= theta else 0.0, 1.0 if n1 and p1 >= theta else 0.0,
+                       1.0 if n2 and three and p2 >= theta else 0.0)
+            _store(acc, a, b, near, (h0, h1, h2), (ht0, ht1, ht2), crossed, float(t))
+            return reduced_choice(state, P, p0, p1, p2, three), t
+    store_words(state, w0, w1, w2, w3)
+    _store(acc, a, b, near, (h0, h1, h2), (ht0, ht1, ht2), (0.0, 0.0, 0.0), 0.0)
     return -1, -1
 
 
 @njit_inline
-def _add_trial(gram, acc, choice, step, n_options):
+def _add_trial(gram, acc, choice, step, n_options, used):
     """Add the trial's ``v v^T`` to the upper triangle of ``gram``, with
-    ``v = (1, acc, e_choice, step e_choice)`` (:func:`gram_size`)."""
+    ``v = (1, acc, e_choice, step e_choice)`` (:func:`gram_size`); only the first ``used``
+    sums of ``acc`` are read (the others are zero and left so)."""
     K = acc.shape[0]
     gram[0, 0] += 1.0
-    for a in range(K):
+    for a in range(used):
         va = acc[a]
         gram[0, 1 + a] += va
-        for b in range(a, K):
+        for b in range(a, used):
             gram[1 + a, 1 + b] += va * acc[b]
     # the targets: one indicator (an option's, or undecided's) and, if chosen, the step
     hit = 1 + K + (choice if choice >= 0 else n_options)
     gram[0, hit] += 1.0
-    for a in range(K):
+    for a in range(used):
         gram[1 + a, hit] += acc[a]
     gram[hit, hit] += 1.0
     if choice >= 0:
         timed = 1 + K + n_options + 1 + choice
         gram[0, timed] += step
-        for a in range(K):
+        for a in range(used):
             gram[1 + a, timed] += acc[a] * step
         gram[hit, timed] += step
         gram[timed, timed] += step * step
 
 
 @njit
-def controlled_chunk(state, first, stop, S, CM, L, cuts, P0, n_steps, theta, plane, choices,
-                     steps, grams):
+def controlled_chunk(state, first, stop, S, CM, L, cuts, P0, n_steps, theta, plane, opt,
+                     rich, choices, steps, grams):
     """Trials ``first <= k < stop`` with :func:`controlled_trial` on one stream; writes
     ``choices[k - first]`` and ``steps[k - first]`` and adds each trial's products to the
     upper triangle of ``grams[k % 2]`` (:func:`_add_trial`)."""
     n = P0.shape[0]
     P = np.empty(n)
-    acc = np.empty(N_CONTROLS)
+    acc = np.zeros(N_CONTROLS)
+    used = N_CONTROLS if rich else POLYNOMIAL_CONTROLS
     for k in range(first, stop):
-        choice, step = controlled_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, P,
-                                        acc)
+        if rich:
+            choice, step = rich_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, opt, P,
+                                      acc)
+        else:
+            choice, step = controlled_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane,
+                                            P, acc)
         choices[k - first] = choice
         steps[k - first] = step
-        _add_trial(grams[k % 2], acc, choice, step, n)
+        _add_trial(grams[k % 2], acc, choice, step, n, used)
 
 
 @njit_parallel
-def controlled_chunks(states, bounds, S, CM, L, cuts, P0, n_steps, theta, plane, choices,
-                      steps, grams):
+def controlled_chunks(states, bounds, S, CM, L, cuts, P0, n_steps, theta, plane, opt, rich,
+                      choices, steps, grams):
     """:func:`controlled_chunk` for every chunk ``c`` (stream ``states[c]``, sums
     ``grams[c]``), in parallel."""
     n_chunks = bounds.shape[0] - 1
@@ -176,4 +371,4 @@ def controlled_chunks(states, bounds, S, CM, L, cuts, P0, n_steps, theta, plane,
         lo = bounds[c] - origin
         hi = bounds[c + 1] - origin
         controlled_chunk(states[c], bounds[c], bounds[c + 1], S, CM, L, cuts, P0, n_steps,
-                         theta, plane, choices[lo:hi], steps[lo:hi], grams[c])
+                         theta, plane, opt, rich, choices[lo:hi], steps[lo:hi], grams[c])

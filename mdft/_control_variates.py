@@ -46,6 +46,12 @@ class ControlledSums:
         (:func:`mdft.simulate._controlled_trials`)."""
         self.gram += grams
 
+    def restricted(self, n_controls: int) -> "ControlledSums":
+        """The same sums with the first ``n_controls`` controls only."""
+        out = ControlledSums(self.n_options, n_controls)
+        out.gram = restricted(self.gram, n_controls, 2 * self.n_options + 1)
+        return out
+
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """``(means, cov)``: the cross-fitted estimates of the targets' expectations and
         their covariance (that of the estimates, not of one trial)."""
@@ -68,6 +74,15 @@ class ControlledSums:
             residual = (cov[y, y] - B.T @ cov[x, y] - cov[y, x] @ B + B.T @ cov[x, x] @ B)
             cov_means = cov_means + count / total**2 * residual * count / (count - 1)
         return np.asarray(means), np.asarray(cov_means)
+
+
+def restricted(grams: np.ndarray, n_controls: int, n_targets: int) -> np.ndarray:
+    """Sums of ``v v^T`` (the last two axes) with only the first ``n_controls`` controls of
+    ``v = (1, controls, targets)`` and the last ``n_targets`` entries (the targets) kept:
+    the sums of the same trials with fewer controls."""
+    size = grams.shape[-1]
+    keep = np.r_[0:1 + n_controls, size - n_targets:size]
+    return grams[..., keep[:, None], keep]
 
 
 def _coefficients(cov: np.ndarray, x: slice, y: slice) -> np.ndarray:

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
-from ._control_kernels import N_CONTROLS
-from ._control_variates import ControlledSums
+from ._control_kernels import N_CONTROLS, POLYNOMIAL_CONTROLS
+from ._control_variates import ControlledSums, restricted
 from ._validation import as_generator
 from .simulate import _controlled_trials, _fallback_trials
 
@@ -37,6 +37,13 @@ PREDICTED_OVER = 2.0
 #: and 2.4-2.7 at 39-55 (200,000 trials of seven models on two threads).
 CONTROLLED_COST = 2.15
 CONTROLLED_TRIAL_COST = 18.0
+#: The same for the trials that also record the sums near the thresholds and the hazards
+#: (``rich``, :mod:`mdft._control_kernels`), which cost more where the walks stay near the
+#: thresholds: 3.93 times a plain trial in the median, 2.95-5.47, on twelve models of
+#: ``benchmarks/bench_threshold_work.py`` (50,000 trials each, two threads), where this
+#: assumes 4.13 (3.60-6.43); 2.6-5.7 on seven slow simulated models of 16-1,500 steps.
+RICH_COST = 3.6
+RICH_TRIAL_COST = 30.0
 #: Where the chain's last answer predicts more than this many times the plain trials that a
 #: controlled batch is worth beyond the first batch, the controlled trials start at once.
 CONTROLLED_AT_ONCE = 2.0
@@ -44,6 +51,9 @@ CONTROLLED_AT_ONCE = 2.0
 #: but at most CONTROLLED_REACH times it, CONTROLLED_PROBE trials with control variates
 #: predict their own work, provided they cost at most CONTROLLED_PROBE_SHARE of the budget.
 CONTROLLED_PROBE = 10_000
+#: Otherwise the first controlled batch has this many trials with every control (``rich``),
+#: on which the trials that follow choose between every control and the monomials alone.
+RICH_PROBE = 20_000
 CONTROLLED_REACH = 20.0
 CONTROLLED_PROBE_SHARE = 0.15
 #: Options chosen fewer times than this have the plain mean time of the controlled trials.
@@ -191,10 +201,13 @@ class _Tally:
                            err_rt)
 
 
-def controlled_cost(steps_per_trial):
-    """Time of a trial with control variates, in trials without, for trials of
-    ``steps_per_trial`` steps on average."""
-    return CONTROLLED_COST + CONTROLLED_TRIAL_COST / max(steps_per_trial, 1.0)
+def controlled_cost(steps_per_trial, rich=True):
+    """Time of a trial with control variates (``rich``: all of them; else the monomials'
+    alone), in trials without, for trials of ``steps_per_trial`` steps on average."""
+    steps = max(steps_per_trial, 1.0)
+    if rich:
+        return RICH_COST + RICH_TRIAL_COST / steps
+    return CONTROLLED_COST + CONTROLLED_TRIAL_COST / steps
 
 
 def _trials_needed(n, err_p, err_rt, atol, rt_rtol):
@@ -239,7 +252,7 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
     batch = min(PROBE_BATCH, FIRST_BATCH) if budgeted else FIRST_BATCH
     try_controls = True
     if (predicted is not None and not budgeted and predicted[0] - FIRST_BATCH
-            > CONTROLLED_AT_ONCE * controlled_cost(predicted[1]) * FIRST_BATCH):
+            > CONTROLLED_AT_ONCE * controlled_cost(predicted[1], rich=False) * FIRST_BATCH):
         answer = _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason,
                                     make_result, max_work, predicted[1], plain)
         if answer is not None:
@@ -269,7 +282,8 @@ def simulated_answer(model, theta, max_steps, atol, rt_rtol, rng, reason, make_r
             probe = limit - plain.work
         # controls, unless fewer plain trials are left than a controlled batch is worth
         if probe is not None or (try_controls
-                                 and need - n > controlled_cost(per_trial) * FIRST_BATCH):
+                                 and need - n > controlled_cost(per_trial, rich=False)
+                                 * FIRST_BATCH):
             try_controls = False
             answer = _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason,
                                         make_result, max_work - plain.work, plain.mean_step,
@@ -290,13 +304,17 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
     (:func:`mdft.simulate._controlled_trials`), where the budget has no room for their
     first batch, or where they do not pay (their trials then join the tally ``plain``).
 
-    The first controlled batch has :data:`FIRST_BATCH` trials, like the plain one; the
-    controls measure time in units of ``time_scale`` steps (the plain trials' mean decision
-    step, or the one predicted). The answer rests on the controlled trials alone, with the
-    estimates and errors of :class:`mdft._control_variates.ControlledSums`. After each batch
-    the trials the controlled errors ask for, times :func:`controlled_cost`, are compared
-    with those the plain errors of the same trials ask for; where the controls do not pay,
-    the controlled trials join the plain ones.
+    The first controlled batch has :data:`RICH_PROBE` trials that record every control
+    (``rich``); the controls measure time in units of ``time_scale`` steps (the plain trials'
+    mean decision step, or the one predicted). The answer rests on the controlled trials
+    alone, at least :data:`FIRST_BATCH` of them, with the estimates and errors of
+    :class:`mdft._control_variates.ControlledSums`. After each batch of every control, the
+    trials the monomials alone would ask for, at their lower cost, are compared with those
+    every control asks for, on the same trials; where the monomials need less time, the
+    sums keep only theirs, and the batches that follow record only theirs. After each
+    batch, the trials the controlled errors ask for, times :func:`controlled_cost`, are
+    compared with those the plain errors of the same trials ask for; where the controls do
+    not pay, the controlled trials join the plain ones.
 
     With ``probe_work``, the first batch is a probe of :data:`CONTROLLED_PROBE` trials, and
     :class:`OverBudget` is raised after it where the trials its errors ask for, at their cost
@@ -305,16 +323,18 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
     """
     tally = _Tally(model.n_options, max_steps)
     sums = ControlledSums(model.n_options, N_CONTROLS)
-    batch = FIRST_BATCH if probe_work is None else CONTROLLED_PROBE
+    rich = True
+    batch = RICH_PROBE if probe_work is None else CONTROLLED_PROBE
     per_trial = plain.work / plain.n if plain.n else time_scale
     if batch * per_trial > max_work:
         return None
     while True:
-        out = _controlled_trials(model, batch, theta, max_steps, gen, time_scale)
+        out = _controlled_trials(model, batch, theta, max_steps, gen, time_scale, rich)
         if out is None:
             return None
         choices, steps, grams = out
-        sums.add(grams)
+        sums.add(grams if rich else restricted(grams, POLYNOMIAL_CONTROLS,
+                                                   2 * model.n_options + 1))
         tally.add(choices, steps)
         n = tally.n
         per_trial = tally.work / n
@@ -322,12 +342,22 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
         if n >= FIRST_BATCH and err_p <= atol and err_rt <= rt_rtol:
             return answer
         need = max(_trials_needed(n, err_p, err_rt, atol, rt_rtol) * 1.1, FIRST_BATCH)
+        if rich:
+            # the monomials alone, on the same trials: where they need fewer trials' time,
+            # the trials that follow record only their sums
+            fewer = sums.restricted(POLYNOMIAL_CONTROLS)
+            _, poly_p, poly_rt = _controlled_estimates(fewer, tally, max_steps, make_result)
+            poly_need = max(_trials_needed(n, poly_p, poly_rt, atol, rt_rtol) * 1.1,
+                            FIRST_BATCH)
+            if (poly_need * controlled_cost(per_trial, rich=False)
+                    < need * controlled_cost(per_trial)):
+                rich, sums, need = False, fewer, poly_need
         plain_need = _trials_needed(n, *tally.errors(), atol, rt_rtol) * 1.1
-        if need * controlled_cost(per_trial) >= plain_need:
+        if need * controlled_cost(per_trial, rich) >= plain_need:
             plain.merge(tally)
             return None
         if (probe_work is not None and n < FIRST_BATCH
-                and need * per_trial * controlled_cost(per_trial) > probe_work):
+                and need * per_trial * controlled_cost(per_trial, rich) > probe_work):
             raise over_budget(reason, need, per_trial, " with control variates")
         if need * per_trial > max_work:
             raise over_budget(reason, need, per_trial)

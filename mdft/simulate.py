@@ -308,13 +308,14 @@ def _fallback_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: 
 
 
 def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps: int,
-                       generator: np.random.Generator, time_scale: float
+                       generator: np.random.Generator, time_scale: float, rich: bool = True
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`_fallback_trials` with control variates (:mod:`mdft._control_kernels`):
     ``(choices, steps, grams)``, ``grams`` (2, size, size) the two folds' sums of ``v v^T``
     (:func:`mdft._control_kernels.gram_size`, made symmetric); None for the models
     :func:`_fallback_trials` hands to :func:`simulate` (more than three options, or noise of
-    rank above two).
+    rank above two). Without ``rich`` only the monomials' sums are recorded (the others are
+    zero).
 
     The position is measured from the start in units of ``theta``, and the step in units of
     ``time_scale``, so that the sums are of order one. (The monomials span the same functions
@@ -340,11 +341,15 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     plane[1, 4] = 1.0 / max(time_scale, 1.0)
     plane[:, 5:5 + L.shape[1]] = E[:, :n] @ L
     plane[:, 7:] = E[:, :n] @ (CM - (CM @ w)[:, None])
+    opt = np.zeros((3, 1 + CM.shape[1]))
+    sd = np.sqrt(np.einsum("ij,ij->i", L, L))
+    opt[:n, 0] = np.divide(1.0, sd, out=np.zeros(n), where=sd > 0)
+    opt[:n, 1:] = CM - (CM @ w)[:, None]
     states, bounds, choices, steps = _chunk_layout(generator, n_samples)
     size = _control_kernels.gram_size(n)
     grams = np.zeros((N_CHUNKS, 2, size, size))
     _run_chunks(_control_kernels.controlled_chunks, _control_kernels.controlled_chunk, states,
-                bounds, (*args, plane), choices, steps, n_samples * max_steps, (grams,))
+                bounds, (*args, plane, opt, bool(rich)), choices, steps, n_samples * max_steps, (grams,))
     upper = grams.sum(axis=0)
     lower = np.transpose(np.triu(upper, 1), (0, 2, 1))
     return choices, steps, upper + lower

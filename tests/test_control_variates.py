@@ -29,16 +29,18 @@ def _model_with_start(rng, n_options):
     return model, float(rng.uniform(3.0, 15.0))
 
 
+@pytest.mark.parametrize("rich", [True, False])
 @pytest.mark.parametrize("n_options", [2, 3])
-def test_controlled_trials_are_the_fallback_trials(n_options):
-    # the same draws and arithmetic: from the same generator, the same choices and steps
-    # to the bit, and sums that count them
+def test_controlled_trials_are_the_fallback_trials(n_options, rich):
+    # the same draws and arithmetic, with every control or the monomials alone: from the
+    # same generator, the same choices and steps to the bit, and sums that count them
     rng = np.random.default_rng(11 + n_options)
     for draw in range(4):
         model, theta = _model_with_start(rng, n_options)
         choices, steps = _fallback_trials(model, 4_000, theta, 300, np.random.default_rng(draw))
         c2, s2, grams = _controlled_trials(model, 4_000, theta, 300,
-                                           np.random.default_rng(draw), 50.0)
+                                           np.random.default_rng(draw), 50.0, rich)
+        assert rich or not grams[:, 1 + _control_kernels.POLYNOMIAL_CONTROLS:1 + K].any()
         np.testing.assert_array_equal(choices, c2)
         np.testing.assert_array_equal(steps, s2)
         total = grams.sum(axis=0)
@@ -87,6 +89,52 @@ def test_control_sums_have_mean_zero(n_options):
         z = np.abs(mean[live]) / np.sqrt(var[live] / n)
         worst = max(worst, float(z.max()))
     assert worst < 4.5, worst
+
+
+def test_the_hazard_tail_is_a_normal_tail_to_its_stated_accuracy():
+    # the hazards' normal tail: relative error below 1.2e-7 wherever a step may count and
+    # beyond, both signs
+    g = np.linspace(-9.0, 9.0, 3_601)
+    tail = np.array([_control_kernels._upper_tail(v) for v in g])
+    exact = np.array([0.5 * math.erfc(v / math.sqrt(2.0)) for v in g])
+    assert np.max(np.abs(tail / exact - 1.0)) < 1.2e-7
+
+
+def test_the_richer_controls_pay_for_a_rarely_chosen_option():
+    # an option chosen in 0.7 % of the trials (a draw of the benchmark): the monomials alone
+    # barely help its mean time; the functions near the thresholds and the hazards save
+    # several times as many trials for it, and more for the probabilities too
+    model = drawn([[2.2, 3.82], [2.17, 1.44], [3.87, 2.65]], [0.568, 0.432], phi1=0.0296,
+                  phi2=0.0269, beta=2.24, sigma2=0.569)
+    choices, steps, grams = _controlled_trials(model, 100_000, 27.93, 10_000,
+                                               np.random.default_rng(0), 55.0)
+    assert 0.004 < np.mean(choices == 0) < 0.01
+    errors = {}
+    for name, n_controls in (("none", 0), ("monomials", _control_kernels.POLYNOMIAL_CONTROLS),
+                             ("all", K)):
+        sums = ControlledSums(3, K)
+        sums.add(grams)
+        means, cov = sums.restricted(n_controls).estimate()
+        c = np.zeros(7)
+        c[4], c[0] = 1.0, -means[4] / means[0]  # option 0's mean time, by the delta method
+        errors[name] = (math.sqrt(cov[0, 0]), math.sqrt(c @ cov @ c))
+    saved = {k: ((errors["none"][0] / e[0]) ** 2, (errors["none"][1] / e[1]) ** 2)
+             for k, e in errors.items()}
+    assert saved["monomials"][1] < 4.0 and saved["all"][1] > 3.0 * saved["monomials"][1]
+    assert saved["all"][0] > 2.0 * saved["monomials"][0]
+
+
+def test_restricted_sums_are_those_of_fewer_controls():
+    # dropping controls from the sums gives what sums of the same trials without them give
+    rng = np.random.default_rng(8)
+    grams = _synthetic_grams(rng, 2_000, rng.normal(0.0, 1.0, K), 0.5)
+    sums = ControlledSums(1, K)
+    sums.add(grams)
+    keep = np.r_[0:1 + 10, 1 + K:grams.shape[-1]]
+    direct = ControlledSums(1, 10)
+    direct.add(grams[:, keep][:, :, keep])
+    for a, b in zip(sums.restricted(10).estimate(), direct.estimate()):
+        np.testing.assert_array_equal(a, b)
 
 
 def _synthetic_grams(rng, n, beta, noise):
@@ -144,12 +192,14 @@ def test_a_control_without_variance_is_left_out():
     assert means[2] == pytest.approx(10.0, abs=0.1)
 
 
-def _count_calls(monkeypatch, name):
+def _count_calls(monkeypatch, name, kinds=None):
     calls = []
     run = getattr(fb, name)
 
     def counted(model, n, *args):
         calls.append(n)
+        if kinds is not None:
+            kinds.append(args[-1])
         return run(model, n, *args)
 
     monkeypatch.setattr(fb, name, counted)
@@ -177,6 +227,23 @@ def test_controlled_answers_agree_with_an_independent_simulation(monkeypatch):
     assert answered >= 2
 
 
+def test_controls_that_pay_less_than_the_monomials_alone_give_way_to_them(monkeypatch):
+    # the first controlled batch records every control; where the monomials alone would
+    # need fewer trials' time (here: the richer trials made dear), the batches that follow
+    # record only theirs, and the answer rests on all the trials, within its stated error
+    from threshold_models import SETS, canonical
+
+    model = canonical(SETS["compromise"])
+    monkeypatch.setattr(fb, "RICH_COST", 50.0)
+    kinds = []
+    controlled = _count_calls(monkeypatch, "_controlled_trials", kinds)
+    res = mdft.threshold_probabilities(model, 6.0, max_states=10)
+    assert kinds[0] is True and len(kinds) > 1 and not any(kinds[1:])
+    assert controlled[0] == fb.RICH_PROBE and res.n_iter == sum(controlled)
+    assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
+    assert_within_stated_error(res, model, 6.0, 200_000, 13)
+
+
 def test_controls_that_do_not_pay_leave_the_trials_to_the_plain_estimates(monkeypatch):
     # a controlled batch that does not meet the tolerances, and whose controls save fewer
     # trials than they cost, joins the plain trials; the answer is the plain one over all of
@@ -185,10 +252,10 @@ def test_controls_that_do_not_pay_leave_the_trials_to_the_plain_estimates(monkey
 
     model = canonical(SETS["compromise"])
     costs = iter([0.0])
-    monkeypatch.setattr(fb, "controlled_cost", lambda steps: next(costs, 1e9))
+    monkeypatch.setattr(fb, "controlled_cost", lambda steps, rich=True: next(costs, 1e9))
     controlled = _count_calls(monkeypatch, "_controlled_trials")
     res = mdft.threshold_probabilities(model, 6.0, max_states=10, atol=0.001, rt_rtol=0.01)
-    assert controlled == [fb.FIRST_BATCH] and res.error_probabilities <= 0.001
+    assert controlled == [fb.RICH_PROBE] and res.error_probabilities <= 0.001
     assert res.n_iter > 2 * fb.FIRST_BATCH
     counts = res.probabilities * res.n_iter
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
@@ -225,11 +292,12 @@ def test_a_large_predicted_simulation_starts_with_its_controls(monkeypatch):
     model = canonical(SETS["compromise"])
     plain = _count_calls(monkeypatch, "_fallback_trials")
     controlled = _count_calls(monkeypatch, "_controlled_trials")
-    at_once = (fb.FIRST_BATCH * (1 + 1.1 * fb.CONTROLLED_AT_ONCE * fb.controlled_cost(12.0)),
+    at_once = (fb.FIRST_BATCH * (1 + 1.1 * fb.CONTROLLED_AT_ONCE
+                                 * fb.controlled_cost(12.0, rich=False)),
                12.0)
     res = threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
                                      predicted=at_once)
-    assert plain == [] and controlled[0] == fb.FIRST_BATCH and res.n_iter == sum(controlled)
+    assert plain == [] and controlled[0] == fb.RICH_PROBE and res.n_iter == sum(controlled)
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
     controlled.clear()
     threshold_exact._simulated(model, 6.0, 10_000, 1e-3, 3e-3, None, "a test",
