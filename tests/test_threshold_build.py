@@ -267,7 +267,7 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
 def test_work_benchmark_measures_the_three_units(capsys):
     """``bench_threshold_work.py`` prints the propagated nonzero-step, the built nonzero and
     the simulated trial-step that the fallback's choice counts in, and the cost of the
-    controlled trials, and names bad options."""
+    controlled trials of both kinds, and names bad options."""
     import importlib.util
     import re
     from pathlib import Path
@@ -282,10 +282,12 @@ def test_work_benchmark_measures_the_three_units(capsys):
     step = re.search(r"propagated nonzero-step: median ([0-9.]+) ns", out)
     build = re.search(r"built nonzero: median ([0-9.]+) units", out)
     sim = re.search(r"simulated trial-step: median ([0-9.]+) ns = ([0-9.]+) units", out)
-    controlled = re.search(r"controlled trials: ([0-9.]+) times the plain trials' time", out)
-    assert step and build and sim and controlled, out
+    monomials = re.search(r"trials with the monomials' controls: ([0-9.]+) times the plain "
+                          r"trials' time", out)
+    every = re.search(r"trials with every control: ([0-9.]+) times the plain trials' time", out)
+    assert step and build and sim and monomials and every, out
     assert float(step.group(1)) > 0 and float(build.group(1)) > 0 and float(sim.group(2)) > 0
-    assert float(controlled.group(1)) > 0
+    assert float(monomials.group(1)) > 0 and float(every.group(1)) > 0
     with pytest.raises(SystemExit):
         bench.main(["--models", "0"])
     assert "--models must be at least 1, got 0" in capsys.readouterr().err
