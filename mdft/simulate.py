@@ -349,7 +349,8 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     size = _control_kernels.gram_size(n)
     grams = np.zeros((N_CHUNKS, 2, size, size))
     _run_chunks(_control_kernels.controlled_chunks, _control_kernels.controlled_chunk, states,
-                bounds, (*args, plane, opt, bool(rich)), choices, steps, n_samples * max_steps, (grams,))
+                bounds, (*args, plane, opt, bool(rich)), choices, steps, n_samples * max_steps,
+                (grams,))
     upper = grams.sum(axis=0)
     lower = np.transpose(np.triu(upper, 1), (0, 2, 1))
     return choices, steps, upper + lower
