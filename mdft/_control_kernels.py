@@ -5,30 +5,36 @@ arguments from a checked model and calls these functions.
 
 A trial of two or three options runs as :func:`mdft._kernels.reduced_trial` does (the same
 draws and arithmetic, so the same choices and steps from the same stream) and also records
-two kinds of sums over its steps ``t = 1 .. T``:
+sums over its steps ``t = 1 .. T``. :func:`controlled_trial` records the monomials' sums:
 
-- the products ``m(P(t-1), t) xi(t)``. ``xi(t)`` is the step's random part in the zero-sum
-  plane, ``E (C M (e_j - w) + L z)``: the attention's deviation from its mean and the noise,
-  centred, so that its expectation given everything before step ``t`` is zero. ``m`` runs
-  over :data:`N_MONOMIALS` functions of the state before the step: the monomials of the
-  plane position ``y = E (P(t-1) - P(0)) / theta`` of degree at most 3, ``t / time_scale``
-  times those of degree at most 2, and, for each option ``i``, ``exp(3 d_i)`` and
-  ``exp(9 d_i)`` with ``d_i = (P_i(t-1) - theta) / theta``, each alone and times
-  ``t / time_scale`` (functions that rise steeply near option ``i``'s threshold, where the
-  chance of choosing a rarely chosen option changes fastest);
-- for each option ``i``, its crossing hazard: the step's chance ``a_i(t)`` that ``P_i``
-  reaches ``theta``, given the state before the step and the attribute attended (a normal
-  tail: the noise is the only randomness left), summed over the steps, alone and times
-  ``t``. The trial records ``F_i - sum_t a_i(t)`` and ``T F_i - sum_t t a_i(t)``, ``F_i``
-  the indicator that ``P_i`` ends at or above ``theta``.
+- the products ``m(y(t-1), t) xi(t)`` along both plane axes. ``xi(t)`` is the step's random
+  part in the zero-sum plane, ``E (C M (e_j - w) + L z)``: the attention's deviation from
+  its mean and the noise, centred, so that its expectation given everything before step
+  ``t`` is zero. ``m`` runs over :data:`N_MONOMIALS` monomials of the plane position
+  ``y = E (P - P(0)) / theta``: those of degree at most 3, and ``t / time_scale`` times
+  those of degree at most 2.
+
+:func:`rich_trial` records those and, for each option ``i``:
+
+- near its threshold: ``u^3`` and ``u^9``, ``u = max(0, 1 + (P_i(t-1) - theta) / theta)``,
+  alone and times ``t / time_scale``, times option ``i``'s part of the step's random part
+  (:data:`N_NEAR` sums in all);
+- its crossing hazard: the chance ``a_i(t)`` that the step takes ``P_i`` to ``theta``,
+  given the state before it and the attribute attended (a normal tail: only the noise is
+  left to draw), summed over the steps that count (the step's mean within
+  :data:`HAZARD_REACH` standard deviations below ``theta``), alone and times ``t``. The
+  trial records ``F_i - sum_t a_i(t)`` and ``T F_i - sum_t t a_i(t)``, ``F_i`` the
+  indicator that its last step counted and took ``P_i`` to ``theta``.
 
 Each sum's terms have expectation zero given everything before them (``m`` and the state
-are known before ``xi(t)`` and the noise of step ``t`` are drawn; the indicator that step
-``t`` takes ``P_i`` past ``theta`` has expectation ``a_i(t)``), so every sum is a martingale
-stopped at the trial's end, a bounded time, and has expectation zero exactly: a control
-variate (:mod:`mdft._control_variates`). A tail beyond :data:`HAZARD_REACH` standard
-deviations is taken as zero (below 1e-17 a step). Two options use the first plane axis only
-(the second axis is zero, and so are the sums that involve it, and the third option's).
+are known before ``xi(t)`` and the noise of step ``t`` are drawn; whether a step counts is
+known once its attribute is drawn, and the indicator that a counted step takes ``P_i`` past
+``theta`` has expectation ``a_i(t)``; a trial goes on only while no option has reached it),
+so every sum is a martingale stopped at the trial's end, a bounded time, and has
+expectation zero: a control variate (:mod:`mdft._control_variates`). The hazards' normal
+tail has a relative error below 1.2e-7 (:func:`_upper_tail`), the only departure from zero.
+Two options use the first plane axis only (the second axis is zero, and so are the sums
+that involve it, and the third option's).
 """
 
 from __future__ import annotations
@@ -46,7 +52,8 @@ from ._numba import njit, njit_inline, njit_parallel
 #: of degree <= 2 times the step.
 N_MONOMIALS = 16
 #: Functions of an option's distance to the threshold that multiply that option's part of
-#: ``xi``: for each of three options, two exponentials, alone and times the step.
+#: ``xi``: for each of three options, two powers that rise steeply towards it (like
+#: exponentials), alone and times the step.
 N_NEAR = 12
 #: Hazard sums a trial records: each option's, alone and weighted by the step.
 N_HAZARDS = 6
