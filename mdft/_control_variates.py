@@ -43,7 +43,12 @@ class ControlledSums:
 
     def add(self, grams: np.ndarray) -> None:
         """Add the two folds' sums of a run of trials
-        (:func:`mdft.simulate._controlled_trials`)."""
+        (:func:`mdft.simulate._controlled_trials`); sums with more controls than these
+        (trials that recorded every control, added to the monomials') add their first
+        ones."""
+        size = self.gram.shape[-1]
+        if grams.shape[-1] > size:
+            grams = restricted(grams, self.n_controls, 2 * self.n_options + 1)
         self.gram += grams
 
     def restricted(self, n_controls: int) -> "ControlledSums":

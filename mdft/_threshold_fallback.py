@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ._control_kernels import N_CONTROLS, POLYNOMIAL_CONTROLS
-from ._control_variates import ControlledSums, restricted
+from ._control_variates import ControlledSums
 from ._validation import as_generator
 from .simulate import _controlled_trials, _fallback_trials
 
@@ -333,8 +333,7 @@ def _controlled_answer(model, theta, max_steps, atol, rt_rtol, gen, reason, make
         if out is None:
             return None
         choices, steps, grams = out
-        sums.add(grams if rich else restricted(grams, POLYNOMIAL_CONTROLS,
-                                                   2 * model.n_options + 1))
+        sums.add(grams)
         tally.add(choices, steps)
         n = tally.n
         per_trial = tally.work / n

@@ -21,6 +21,17 @@ class ThresholdToleranceError(ValueError):
     tolerances may be met where these were not; the likelihood of :func:`mdft.fit` asks for
     them then (``docs/fitting.md``, "Where the exact engine cannot vouch"). A model that no
     chain can answer (more than three options, no noise, ...) raises a plain ``ValueError``.
+
+    Examples
+    --------
+    >>> import mdft
+    >>> model = mdft.MDFTModel([[1, 3], [3, 1], [2, 2]], [0.5, 0.5],
+    ...                        phi1=0.022, phi2=0.05, beta=12.0)
+    >>> try:
+    ...     mdft.threshold_probabilities(model, 17.5, max_states=10, fallback="raise")
+    ... except mdft.ThresholdToleranceError as exc:
+    ...     print("refused:", "max_states=10" in str(exc))
+    refused: True
     """
 
 
