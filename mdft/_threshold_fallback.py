@@ -40,10 +40,13 @@ CONTROLLED_TRIAL_COST = 18.0
 #: The same for the trials that also record the sums near the thresholds and the hazards
 #: (``rich``, :mod:`mdft._control_kernels`), which cost more where the walks stay near the
 #: thresholds: 3.93 times a plain trial in the median, 2.95-5.47, on twelve models of
-#: ``benchmarks/bench_threshold_work.py`` (50,000 trials each, two threads), where this
-#: assumes 4.13 (3.60-6.43); 2.6-5.7 on seven slow simulated models of 16-1,500 steps.
+#: ``benchmarks/bench_threshold_work.py`` (50,000 trials each, two threads); 2.6-5.7 on
+#: seven slow simulated models of 16-1,500 steps. Their products are added a group of
+#: trials at a time since (:data:`mdft._control_kernels.GROUP`), which took the part per
+#: trial from about 30 plain steps to 20 (six models of 16-1,500 steps, timed in turn with
+#: the kernel before: 10 % less time at 16 steps a trial, 5 % at 55-96, 2 % at 1,500).
 RICH_COST = 3.6
-RICH_TRIAL_COST = 30.0
+RICH_TRIAL_COST = 20.0
 #: Where the chain's last answer predicts more than this many times the plain trials that a
 #: controlled batch is worth beyond the first batch, the controlled trials start at once.
 CONTROLLED_AT_ONCE = 2.0

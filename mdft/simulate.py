@@ -322,6 +322,24 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     from any origin; an origin far from the walks, such as the mean path's fixed point where
     ``S`` nearly keeps the preferences, only makes their fit ill-conditioned.)
     """
+    control_args = _control_args(model, theta, max_steps, time_scale)
+    if control_args is None:
+        return None
+    args, plane, opt = control_args
+    states, bounds, choices, steps = _chunk_layout(generator, n_samples)
+    size = _control_kernels.gram_size(model.n_options)
+    grams = np.zeros((N_CHUNKS, 2, size, size))
+    _run_chunks(_control_kernels.controlled_chunks, _control_kernels.controlled_chunk, states,
+                bounds, (*args, plane, opt, bool(rich)), choices, steps, n_samples * max_steps,
+                (grams,))
+    return choices, steps, _control_kernels.symmetric(grams.sum(axis=0))
+
+
+def _control_args(model: MDFTModel, theta: float, max_steps: int, time_scale: float):
+    """The arguments of the controlled trials' kernels (:func:`_controlled_trials`):
+    ``(args, plane, opt)``, ``args`` those of the plain trials (:func:`_reduced_args`),
+    ``plane`` and ``opt`` as :func:`mdft._control_kernels.rich_trial` takes them; None where
+    :func:`_reduced_args` is."""
     args = _reduced_args(model, theta, max_steps)
     if args is None:
         return None
@@ -345,15 +363,7 @@ def _controlled_trials(model: MDFTModel, n_samples: int, theta: float, max_steps
     sd = np.sqrt(np.einsum("ij,ij->i", L, L))
     opt[:n, 0] = np.divide(1.0, sd, out=np.zeros(n), where=sd > 0)
     opt[:n, 1:] = CM - (CM @ w)[:, None]
-    states, bounds, choices, steps = _chunk_layout(generator, n_samples)
-    size = _control_kernels.gram_size(n)
-    grams = np.zeros((N_CHUNKS, 2, size, size))
-    _run_chunks(_control_kernels.controlled_chunks, _control_kernels.controlled_chunk, states,
-                bounds, (*args, plane, opt, bool(rich)), choices, steps, n_samples * max_steps,
-                (grams,))
-    upper = grams.sum(axis=0)
-    lower = np.transpose(np.triu(upper, 1), (0, 2, 1))
-    return choices, steps, upper + lower
+    return args, plane, opt
 
 
 # ---------------------------------------------------------------- helpers

@@ -57,6 +57,50 @@ def test_controlled_trials_are_the_fallback_trials(n_options, rich):
             assert total[y + i, t] == mine.sum()
 
 
+@pytest.mark.parametrize("rich", [True, False])
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_the_sums_are_those_of_each_trial_recorded_alone(n_options, rich):
+    # the chunk's sums, products of control sums added a group of trials at a time and the
+    # targets' products below the diagonal, against v v^T built trial by trial from the
+    # trial kernels themselves, over chunks of every length modulo the group
+    from mdft.simulate import _control_args
+
+    rng = np.random.default_rng(31 + n_options)
+    model, theta = _model_with_start(rng, n_options)
+    args, plane, opt = _control_args(model, theta, 300, 50.0)
+    S, CM, L, cuts, P0, n_steps, th = args
+    size = _control_kernels.gram_size(n_options)
+    for n_trials in range(2 * _control_kernels.GROUP + 1, 4 * _control_kernels.GROUP + 1):
+        seed = np.random.default_rng(n_trials).integers(0, 2**63, 4).astype(np.uint64)
+        state = seed.copy()
+        grams = np.zeros((2, size, size))
+        choices = np.zeros(n_trials, dtype=np.int64)
+        steps = np.zeros(n_trials, dtype=np.int64)
+        _control_kernels.controlled_chunk(state, 0, n_trials, S, CM, L, cuts, P0, n_steps, th,
+                                          plane, opt, rich, choices, steps, grams)
+        state = seed.copy()
+        expected = np.zeros((2, size, size))
+        P = np.empty(n_options)
+        for k in range(n_trials):
+            acc = np.zeros(K)
+            if rich:
+                choice, step = _control_kernels.rich_trial(state, S, CM, L, cuts, P0, n_steps,
+                                                           th, plane, opt, P, acc)
+            else:
+                choice, step = _control_kernels.controlled_trial(state, S, CM, L, cuts, P0,
+                                                                 n_steps, th, plane, P, acc)
+            assert (choice, step) == (choices[k], steps[k])
+            v = np.zeros(size)
+            v[0] = 1.0
+            v[1:1 + K] = acc
+            v[1 + K + (choice if choice >= 0 else n_options)] = 1.0
+            if choice >= 0:
+                v[1 + K + n_options + 1 + choice] = step
+            expected[k % 2] += np.outer(v, v)
+        np.testing.assert_allclose(_control_kernels.symmetric(grams), expected, rtol=1e-12,
+                                   atol=1e-12 * np.abs(expected).max())
+
+
 def test_controlled_trials_are_the_same_in_parallel_and_serially(monkeypatch):
     module = sys.modules["mdft.simulate"]
     model, theta = _model_with_start(np.random.default_rng(5), 3)
