@@ -275,7 +275,6 @@ def rich_trial(state, S, CM, L, cuts, P0, n_steps, theta, plane, opt, P, acc):
     # the sums near the thresholds and the hazards' (with whether the last step counted)
     zero = 0.0
     near = (zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero)
-    e = (zero, zero, zero, zero, zero, zero)
     n0 = n1 = n2 = False
     h0 = h1 = h2 = 0.0
     ht0 = ht1 = ht2 = 0.0

@@ -38,7 +38,8 @@ class ControlledSums:
     def __init__(self, n_options: int, n_controls: int):
         self.n_options = n_options
         self.n_controls = n_controls
-        size = 1 + n_controls + 2 * n_options + 1
+        self.n_targets = 2 * n_options + 1
+        size = 1 + n_controls + self.n_targets
         self.gram = np.zeros((2, size, size))
 
     def add(self, grams: np.ndarray) -> None:
@@ -48,13 +49,13 @@ class ControlledSums:
         ones."""
         size = self.gram.shape[-1]
         if grams.shape[-1] > size:
-            grams = restricted(grams, self.n_controls, 2 * self.n_options + 1)
+            grams = restricted(grams, self.n_controls, self.n_targets)
         self.gram += grams
 
     def restricted(self, n_controls: int) -> "ControlledSums":
         """The same sums with the first ``n_controls`` controls only."""
         out = ControlledSums(self.n_options, n_controls)
-        out.gram = restricted(self.gram, n_controls, 2 * self.n_options + 1)
+        out.gram = restricted(self.gram, n_controls, self.n_targets)
         return out
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:

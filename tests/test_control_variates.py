@@ -11,7 +11,7 @@ import pytest
 import mdft
 from mdft import _control_kernels, _threshold_fallback as fb
 from mdft._control_variates import ControlledSums
-from mdft.simulate import _controlled_trials, _fallback_trials
+from mdft.simulate import _control_args, _controlled_trials, _fallback_trials
 from threshold_models import assert_within_stated_error, drawn, random_model
 
 K = _control_kernels.N_CONTROLS
@@ -63,8 +63,6 @@ def test_the_sums_are_those_of_each_trial_recorded_alone(n_options, rich):
     # the chunk's sums, products of control sums added a group of trials at a time and the
     # targets' products below the diagonal, against v v^T built trial by trial from the
     # trial kernels themselves, over chunks of every length modulo the group
-    from mdft.simulate import _control_args
-
     rng = np.random.default_rng(31 + n_options)
     model, theta = _model_with_start(rng, n_options)
     args, plane, opt = _control_args(model, theta, 300, 50.0)
