@@ -15,7 +15,7 @@ import numpy as np
 from ._plane_chain import (PILOT_RUNAWAY, TooManyStates, build_moment_chain, mean_sums,
                            narrow_axes, near_occupied, pilot_pass, plane_geometry,
                            propagate_moments, reference_sums, solve_moments)
-from ._plane_spread import absorbed_spread
+from ._plane_spread import simulate_walks, spread_about, walk_plane
 from ._threshold_fallback import RT_WEIGHT_FLOOR, steps_per_walk
 from ._threshold_solve import error_estimate, krylov, mean_rt
 from .threshold_result import ThresholdProbabilities
@@ -65,6 +65,16 @@ SHORT_DELIBERATION = 30.0
 # could be filled: their walks settle late, and a try at the usual first step would find
 # more than it needs.
 EARLY_KRYLOV_PILOT_STEPS = 250
+# Where the simulated walks fit the reference sums instead of the pilots, the passes try it
+# early where at least EARLY_KRYLOV_SHARE of the walks are still undecided after
+# EARLY_KRYLOV_WALK_STEPS steps (on the 46 models of two random draws whose pilots ran,
+# those whose last pilot ran at least EARLY_KRYLOV_PILOT_STEPS steps all had that share
+# undecided, as had five more).
+EARLY_KRYLOV_WALK_STEPS = 125
+EARLY_KRYLOV_SHARE = 0.01
+# Whether the simulated walks fit the reference sums and their spread (where they can:
+# mdft._plane_spread), so that no pilot pass runs. A switch for the tests of the pilots.
+WALK_FIT = True
 
 
 def narrow_everywhere(model, theta, kappa):
@@ -92,22 +102,26 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                edge=False):
     """Computations of increasing resolution for three options (the moment chain).
 
-    Before the first, two pilot passes at the coarsest resolution (the first
-    from a constant reference sum and spread ``PILOT_DELTA``, the second from
-    the first's fit) fit the reference sums and their spread from the
-    occupation; every pass that counts uses that fit, so ``"propagate"`` and
-    ``"solve"`` solve the same chains, with the spread measured among the walks about to
-    decide (:func:`mdft._plane_spread.absorbed_spread`) where it can be, the pilots' where
-    not. A pilot whose closure runs away is cut
-    (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the
-    walks of passes at the first resolution that counts, the last change joining
-    the closure's error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
+    Before the first, a short simulation of the walks (:mod:`mdft._plane_spread`) fits the
+    reference sums (the plane of the sum over the plane coordinates along the walks) and
+    their spread (among the walks about to decide); every pass uses that fit, so
+    ``"propagate"`` and ``"solve"`` solve the same chains. Where the walks cannot fit them
+    (too few decide; or ``WALK_FIT`` is off), two pilot passes at the coarsest resolution
+    do (the first from a constant reference sum and spread ``PILOT_DELTA``, the second from
+    the first's fit), from their occupation, with the spread measured among the walks about
+    to decide where it can be, the pilots' where not. A pilot whose closure runs away is
+    cut (:func:`mdft._plane_chain.pilot_pass`), and its fit is then refitted to the walks
+    of passes at the first resolution that counts, the last change joining the closure's
+    error as ``closure["reference"]``. ``tolerances``: ``(atol, rt_rtol)``.
 
-    ``cheaper(answer, nonzeros, steps)``, when given, is asked after the first pilot, with
-    its answer (``probabilities``, ``p_undecided``, ``rt_pmf``; None where the pilot was
-    cut), the nonzeros that the first pass that counts, its probes and the next pass (and
-    after a cut pilot, two refits) are expected to build (each refinement by ``REFINE`` four
-    times the nonzeros of the grid before), and the pilot's steps; what it returns other
+    ``cheaper(answer, nonzeros, steps)``, when given, is asked once before the closure's
+    probes of the first pass that counts, with its answer and the nonzeros that its probes
+    and the next pass are expected to build (each refinement by ``REFINE`` four times the
+    nonzeros of the grid before) and its steps, and with ``probed=None`` (no probe of the
+    control variates); or, where pilots run, after the first pilot, with its answer
+    (``probabilities``, ``p_undecided``, ``rt_pmf``; None where the pilot was cut), the
+    nonzeros that the first pass that counts, its probes and the next pass (and after a cut
+    pilot, two refits) are expected to build, and the pilot's steps. What it returns other
     than None (a simulated answer) is the first run's result. ``edge``: every chain's rows
     carry the edge terms (:mod:`mdft._plane_boundary`).
     """
@@ -133,6 +147,12 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         return chain, out, cut
 
     def pilot(k):
+        g = plane_geometry(model, theta, k)
+        E = g["E"]
+        # where the sum stays put, there is nothing to fit (the pilots are short then)
+        walks = simulate_walks(model, theta, solve["max_steps"]) if g["n_levels"] > 1 else None
+        if WALK_FIT and walks is not None and fitted_by_walks(walks, E):
+            return
         unmeasured = False
         for i in range(PILOT_PASSES):
             chain, out, cut = fitting_pass(k, PILOT_STEPS, 1e-6)
@@ -163,8 +183,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         if state["delta"] > 0.0:
             # the spread that matters: among the walks about to decide (simulated), not the
             # pilots' spread over the whole occupation
-            spread = absorbed_spread(model, theta, solve["max_steps"],
-                                     plane_geometry(model, theta, k)["E"], state["ref"])
+            spread = None if walks is None else spread_about(walks, E, state["ref"])
             if spread is not None:
                 logger.debug("spread of the sum: %.3g in the pilots, %.3g among the walks "
                              "about to decide", state["delta"], spread)
@@ -174,6 +193,22 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
             state["near"] = None if cut else near_occupied(chain, occ)
         # walks that settle late on the pilots' grid settle late on finer ones
         state["early"] = not cut and steps >= EARLY_KRYLOV_PILOT_STEPS
+
+    def fitted_by_walks(walks, E):
+        # the reference sums and their spread from the walks, where the sum moves and enough
+        # walks decide: the pilots are not needed, and the first pass that counts builds
+        # every row and answers the question the first pilot would have (make)
+        ref = walk_plane(walks, E)
+        spread = None if ref is None else spread_about(walks, E, ref)
+        if spread is None or not spread > 0.0:
+            return False
+        state["ref"], state["delta"] = ref, spread
+        steps = np.where(walks.steps > 0, walks.steps, solve["max_steps"])
+        state["early"] = bool(np.mean(steps > EARLY_KRYLOV_WALK_STEPS) >= EARLY_KRYLOV_SHARE)
+        state["ask_first"] = cheaper is not None
+        logger.debug("the walks' reference sums %s and spread %.3g (%d walks)",
+                     np.array2string(ref, precision=4), spread, walks.steps.shape[0])
+        return True
 
     def ask_cheaper(chain, out, cut):
         # the passes ahead at the least: the first that counts with its two probes (where the
@@ -303,6 +338,16 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 if state.get("cut"):
                     refit(k)
             result = run(k, state["delta"])
+            if first and state.get("ask_first") and result.rt_pmf is not None:
+                # the first pass's answer tells what simulating plain trials would cost,
+                # against the passes ahead at the least: its two probes and the next pass (the
+                # probe of control variates, once per call, is left to the hand-over after a
+                # comparison, whose budget is the next pass's: this one's is too small for
+                # most controlled simulations of a chain this large)
+                simulated = cheaper(result, closure["nonzeros"] * (2 + REFINE**4),
+                                    result.n_iter, probed=None)
+                if simulated is not None:
+                    return simulated
             clipped = closure["clipped"]
             if state["delta"] > 0.0 and (first or not closure["settled"]):
                 # the closure's error, measured on the coarsest grid, and again on the next

@@ -1,10 +1,11 @@
-"""Compiled trials that record where a three-option walk stood the step before it decided.
+"""Compiled trials that record where a three-option walk went before it decided.
 
-The moment chain of ``threshold_probabilities`` needs the spread of the summed preference
-among the walks about to decide (:mod:`mdft._plane_spread`). These kernels run the
-threshold trials of :func:`mdft._kernels.reduced_trial` (the same draws and arithmetic)
-and keep, instead of the choice, the preferences before the deciding step. Nothing here
-validates its input.
+The moment chain of ``threshold_probabilities`` needs the plane of reference sums that the
+walks' summed preference follows and the spread of that sum among the walks about to decide
+(:mod:`mdft._plane_spread`). These kernels run the threshold trials of
+:func:`mdft._kernels.reduced_trial` (the same draws and arithmetic) and keep, instead of
+the choice, the preferences before the deciding step and the sums of the products of the
+preferences over every step a walk stood undecided. Nothing here validates its input.
 """
 
 from __future__ import annotations
@@ -16,11 +17,13 @@ from ._numba import njit, njit_parallel
 
 
 @njit
-def last_state_trial(state, S, CM, L, cuts, P0, n_steps, theta, out):
+def walk_trial(state, S, CM, L, cuts, P0, n_steps, theta, out, moments):
     """One three-option threshold trial on the stream ``state``: its decision step, with
-    ``out`` the preferences the step before (``-1`` undecided, ``out`` untouched). The
-    step is written out as in :func:`mdft._kernels.reduced_trial` (a helper taking the
-    coefficients as a tuple made that kernel 1.35 times slower)."""
+    ``out`` the preferences the step before (``-1`` undecided, ``out`` untouched). Each
+    step after which the walk stands undecided at ``p`` adds ``v v^T``, ``v = (1, p)``, to
+    the upper triangle of ``moments`` (4 x 4). The step is written out as in
+    :func:`mdft._kernels.reduced_trial` (a helper taking the coefficients as a tuple made
+    that kernel 1.35 times slower)."""
     r = L.shape[1]
     (s00, s01, s02, s10, s11, s12, s20, s21, s22,
      l00, l01, l10, l11, l20, l21) = reduced_coefficients(S, L, True)
@@ -40,15 +43,26 @@ def last_state_trial(state, S, CM, L, cuts, P0, n_steps, theta, out):
             store_words(state, w0, w1, w2, w3)
             return t
         p0, p1, p2 = q0, q1, q2
+        moments[0, 0] += 1.0
+        moments[0, 1] += p0
+        moments[0, 2] += p1
+        moments[0, 3] += p2
+        moments[1, 1] += p0 * p0
+        moments[1, 2] += p0 * p1
+        moments[1, 3] += p0 * p2
+        moments[2, 2] += p1 * p1
+        moments[2, 3] += p1 * p2
+        moments[3, 3] += p2 * p2
     store_words(state, w0, w1, w2, w3)
     return -1
 
 
 @njit_parallel
-def last_states(states, bounds, S, CM, L, cuts, P0, n_steps, theta, out, steps):
-    """:func:`last_state_trial` for trials ``bounds[c] <= k < bounds[c + 1]`` on stream
-    ``states[c]``, the chunks in parallel: ``steps[k]`` and ``out[k]``."""
+def walks(states, bounds, S, CM, L, cuts, P0, n_steps, theta, out, steps, moments):
+    """:func:`walk_trial` for trials ``bounds[c] <= k < bounds[c + 1]`` on stream
+    ``states[c]``, the chunks in parallel: ``steps[k]``, ``out[k]`` and each chunk's
+    ``moments[c]`` (so that their sum, taken in order, does not depend on the threads)."""
     for c in prange(bounds.shape[0] - 1):
         for k in range(bounds[c], bounds[c + 1]):
-            steps[k] = last_state_trial(states[c], S, CM, L, cuts, P0, n_steps, theta,
-                                        out[k])
+            steps[k] = walk_trial(states[c], S, CM, L, cuts, P0, n_steps, theta, out[k],
+                                  moments[c])

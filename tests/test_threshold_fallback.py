@@ -78,14 +78,20 @@ def _count_builds(monkeypatch):
     return built
 
 
-def test_simulates_from_the_start_where_the_first_pilot_predicts_it_costs_less(monkeypatch):
-    # the first pilot's answer predicts the trials; simulating them costs less than the
+@pytest.mark.parametrize("walks", [True, False])
+def test_simulates_from_the_start_where_the_first_chain_predicts_it_costs_less(monkeypatch,
+                                                                              walks):
+    # the answer of the first pass that counts (where the simulated walks fit the reference
+    # sums) or of the first pilot predicts the trials; simulating them costs less than the
     # passes ahead, so the call simulates after that one chain, within its stated error of
     # the chain's own answer (which fallback="raise", what fitting uses, still gives)
+    monkeypatch.setattr(_plane_passes, "WALK_FIT", walks)
     model = MDFTModel(**QUICK_TO_SIMULATE)
     built = _count_builds(monkeypatch)
     res = threshold_probabilities(model, 55.5)
     assert res.engine == "simulation" and len(built) == 1
+    first = _plane_passes.KAPPA * (_plane_passes.REFINE if walks else 2.0)
+    assert built[0] == pytest.approx(first)
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
     built.clear()
     chain = threshold_probabilities(model, 55.5, fallback="raise")
@@ -117,18 +123,22 @@ def _counted_trials(monkeypatch):
     return trials
 
 
-def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(monkeypatch):
+@pytest.mark.parametrize("walks", [True, False])
+def test_early_simulation_needing_more_than_predicted_goes_back_to_the_chain(monkeypatch,
+                                                                            walks):
     # where the trials turn out to need more than _SIM_OVERRUN times the predicted chain
-    # work, the simulation stops after its first batch and the chain goes on from its pilot
+    # work, the simulation stops after its first batch and the chain goes on from its first
+    # pass (its probes next) or its first pilot (the second pilot next)
     from mdft import _threshold_fallback as fb
 
+    monkeypatch.setattr(_plane_passes, "WALK_FIT", walks)
     model = MDFTModel(**QUICK_TO_SIMULATE)
     trials = _counted_trials(monkeypatch)
     monkeypatch.setattr(fb, "FIRST_BATCH", 1_000)  # too few trials for the tolerances
     monkeypatch.setattr(threshold_exact, "_SIM_OVERRUN", 1e-3)
     built = _count_builds(monkeypatch)
     res = threshold_probabilities(model, 55.5)
-    # one batch, then the second pilot and the passes that count
+    # one batch, then the chains built on the same grid and the passes that count
     assert trials[0] == 1_000 and len(built) > 3 and built[1] == built[0]
     assert res.error_probabilities <= 1e-3 and res.error_mean_rt <= 3e-3
     if res.engine == "simulation":
@@ -155,8 +165,10 @@ def test_a_cut_pilot_hands_over_to_trials_that_cost_less(monkeypatch):
     # its work: within the share of the passes ahead (two refits, the first pass that
     # counts, its probes and the next), the call simulates after that one chain (it used to
     # refit and refine for 8.6 s, then refuse by the closure and simulate anyway)
+    # (the pilots run where the walks cannot fit the reference sums: mdft._plane_spread)
     from mdft import _threshold_fallback as fb
 
+    monkeypatch.setattr(_plane_passes, "WALK_FIT", False)
     model = drawn(**CUT_AND_QUICK)
     built = _count_builds(monkeypatch)
     trials = _counted_trials(monkeypatch)

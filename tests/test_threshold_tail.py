@@ -223,20 +223,25 @@ def test_a_finer_pass_leaves_out_the_krylov_tries_that_failed_on_the_coarser_gri
     assert later[1] == every_try[1]
 
 
-def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monkeypatch):
-    """``threshold_probabilities`` starts its passes' Krylov schedule early where the last
-    pilot ran at least EARLY_KRYLOV_PILOT_STEPS steps (a random model of seed 2 of the test
-    draws, theta 58.1), and not where it settled sooner (the similarity set at a low
-    threshold); the long one's answer is that of the usual schedule within the tails'
-    budgets, which its estimate includes, and its last pass fills the tail at the early
-    try."""
+@pytest.mark.parametrize("walks, switch", [(True, "EARLY_KRYLOV_WALK_STEPS"),
+                                           (False, "EARLY_KRYLOV_PILOT_STEPS")])
+def test_passes_try_the_krylov_tail_early_only_where_the_walks_settle_late(monkeypatch, walks,
+                                                                          switch):
+    """``threshold_probabilities`` starts its passes' Krylov schedule early where at least
+    EARLY_KRYLOV_SHARE of the simulated walks are undecided after EARLY_KRYLOV_WALK_STEPS
+    steps, or, where the pilots fit the reference sums, the last pilot ran at least
+    EARLY_KRYLOV_PILOT_STEPS steps (a random model of seed 2 of the test draws, theta 58.1),
+    and not where they settle sooner (the similarity set at a low threshold); the long
+    one's answer is that of the usual schedule within the tails' budgets, which its
+    estimate includes, and its last pass fills the tail at the early try."""
     from mdft._plane_chain import _KRYLOV_EARLY
 
+    monkeypatch.setattr(_plane_passes, "WALK_FIT", walks)
     seen = []
     propagate = _plane_passes.propagate_moments
     monkeypatch.setattr(_plane_passes, "propagate_moments",
                         lambda *args, **kw: seen.append(kw.get("early")) or propagate(*args, **kw))
-    steps = _plane_passes.EARLY_KRYLOV_PILOT_STEPS
+    steps = getattr(_plane_passes, switch)
     rng = np.random.default_rng(2)
     for _ in range(4):
         model, theta = random_model(rng, 3)
@@ -244,7 +249,7 @@ def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monk
     assert seen and all(seen)
     assert early.tail_start == _KRYLOV_EARLY
     seen.clear()
-    monkeypatch.setattr(_plane_passes, "EARLY_KRYLOV_PILOT_STEPS", 10**9)
+    monkeypatch.setattr(_plane_passes, switch, 10**9)
     usual = threshold_probabilities(model, theta, fallback="raise")
     assert seen and not any(seen)
     assert usual.resolution == early.resolution
@@ -255,7 +260,7 @@ def test_passes_try_the_krylov_tail_early_only_where_the_pilots_settle_late(monk
     weight = np.minimum(1.0, usual.probabilities / 0.01)
     change = weight * np.abs(early.mean_response_times / usual.mean_response_times - 1.0)
     assert change.max() <= 2 * share * 3e-3
-    monkeypatch.setattr(_plane_passes, "EARLY_KRYLOV_PILOT_STEPS", steps)
+    monkeypatch.setattr(_plane_passes, switch, steps)
     seen.clear()
     threshold_probabilities(canonical(SETS["similarity"]), 8.0, fallback="raise")
     assert seen and not any(seen)
