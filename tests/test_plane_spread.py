@@ -73,13 +73,13 @@ def _numpy_positions(model, theta, max_steps, n, seed):
 @pytest.mark.parametrize("seed", range(3))
 def test_the_plane_matches_an_independent_simulation(seed):
     # the least-squares plane of the sum over the plane coordinates at every undecided step
-    # of the walks, against the same fit to 20,000 walks simulated in numpy: the two planes'
+    # of the walks, against the same fit to 8,000 walks simulated in numpy: the two planes'
     # sums, where those walks went, differ by far less than the sums' spread about them
     rng = np.random.default_rng(4420 + seed)
     model, theta = _random_model(rng)
     E = plane_geometry(model, theta, 1.0)["E"]
     got = _plane_spread.walk_plane(_plane_spread.simulate_walks(model, theta, 3000), E)
-    P = _numpy_positions(model, theta, 3000, 20_000, seed)
+    P = _numpy_positions(model, theta, 3000, 8_000, seed)
     X = np.c_[np.ones(P.shape[0]), P @ E]
     want = np.linalg.lstsq(X, P.sum(axis=1), rcond=None)[0]
     spread = float(np.std(P.sum(axis=1) - X @ want))
