@@ -71,7 +71,7 @@ def test_a_closure_whose_choices_turn_negative_answers_a_distribution_and_says_s
     # estimate of 5e-5; clipped, scaled back and counted, p_1 = 1 and the estimate covers them.
     # A pass's closure turns negative by 0.0012 (0.0015 on the pilots' plane of reference
     # sums), beyond the default atol: refused as unstable there. At atol = 2e-3 it is
-    # answered, with the clipped size (about 9e-4) in its estimate; its mean time is 0.21 %
+    # answered, with the clipped size in its estimate (0.00087 in all); its mean time is 0.21 %
     # long against an estimate of 0.29 % (on the pilots' plane 0.14 % long, the closure's term
     # 0.04 %: the spread among the walks about to decide, 1.23, was larger than the pilots',
     # 0.45, and its probe moved the answer less)
