@@ -195,9 +195,9 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         state["early"] = not cut and steps >= EARLY_KRYLOV_PILOT_STEPS
 
     def fitted_by_walks(walks, E):
-        # the reference sums and their spread from the walks, where the sum moves and enough
-        # walks decide: the pilots are not needed, and the first pass that counts builds
-        # every row and answers the question the first pilot would have (make)
+        # the reference sums and their spread from the walks (of a sum that moves), where
+        # enough of them decide: the pilots are not needed, and the first pass that counts
+        # builds every row and answers the question the first pilot would have (make)
         ref = walk_plane(walks, E)
         spread = None if ref is None else spread_about(walks, E, ref)
         if spread is None or not spread > 0.0:
@@ -205,7 +205,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         state["ref"], state["delta"] = ref, spread
         steps = np.where(walks.steps > 0, walks.steps, solve["max_steps"])
         state["early"] = bool(np.mean(steps > EARLY_KRYLOV_WALK_STEPS) >= EARLY_KRYLOV_SHARE)
-        state["ask_first"] = cheaper is not None
+        state["ask_first"] = cheaper is not None  # (given only to "propagate": an rt_pmf)
         logger.debug("the walks' reference sums %s and spread %.3g (%d walks)",
                      np.array2string(ref, precision=4), spread, walks.steps.shape[0])
         return True
@@ -338,7 +338,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 if state.get("cut"):
                     refit(k)
             result = run(k, state["delta"])
-            if first and state.get("ask_first") and result.rt_pmf is not None:
+            if first and state.get("ask_first"):
                 # the first pass's answer tells what simulating plain trials would cost,
                 # against the passes ahead at the least: its two probes and the next pass (the
                 # probe of control variates, once per call, is left to the hand-over after a

@@ -133,9 +133,3 @@ def spread_about(walks, E, ref):
     spread = float(np.std(deviation, ddof=1))
     return spread if math.isfinite(spread) else None
 
-
-def absorbed_spread(model, theta, max_steps, E, ref):
-    """:func:`spread_about` the plane ``ref`` of freshly simulated walks
-    (:func:`simulate_walks`); None where they cannot give it."""
-    walks = simulate_walks(model, theta, max_steps)
-    return None if walks is None else spread_about(walks, E, ref)

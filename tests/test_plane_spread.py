@@ -27,6 +27,12 @@ def _random_model(rng):
     return model, float(rng.uniform(5.0, 25.0))
 
 
+def _spread(model, theta, max_steps, E, ref):
+    """The spread about the plane ``ref`` of the walks the chain simulates."""
+    return _plane_spread.spread_about(_plane_spread.simulate_walks(model, theta, max_steps), E,
+                                      ref)
+
+
 def _numpy_last_sums(model, theta, max_steps, n, seed):
     """Sums and plane coordinates' source (the preferences) of ``n`` walks the step before
     they decide, after the first step: plain numpy, three normals a step through ``C``."""
@@ -121,7 +127,7 @@ def test_the_spread_matches_an_independent_simulation(seed):
     model, theta = _random_model(rng)
     E = plane_geometry(model, theta, 1.0)["E"]
     ref = np.array([rng.normal(0.0, 3.0), rng.normal(0.0, 0.3), rng.normal(0.0, 0.3)])
-    got = _plane_spread.absorbed_spread(model, theta, 3000, E, ref)
+    got = _spread(model, theta, 3000, E, ref)
     P = _numpy_last_sums(model, theta, 3000, 20_000, seed)
     assert (P < theta).all()
     deviation = P.sum(axis=1) - (ref[0] + (P @ E) @ ref[1:])
@@ -150,14 +156,14 @@ def test_the_spread_and_the_plane_do_not_depend_on_the_threads():
     model, theta = _random_model(np.random.default_rng(4412))
     E = plane_geometry(model, theta, 1.0)["E"]
     ref = np.array([1.0, 0.1, -0.2])
-    first = _plane_spread.absorbed_spread(model, theta, 3000, E, ref)
-    plane = _plane_spread.walk_plane(_plane_spread.simulate_walks(model, theta, 3000), E)
+    walks = _plane_spread.simulate_walks(model, theta, 3000)
+    first, plane = _plane_spread.spread_about(walks, E, ref), _plane_spread.walk_plane(walks, E)
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        one = _plane_spread.absorbed_spread(model, theta, 3000, E, ref)
-        plane_one = _plane_spread.walk_plane(_plane_spread.simulate_walks(model, theta, 3000),
-                                             E)
+        walks = _plane_spread.simulate_walks(model, theta, 3000)
+        one = _plane_spread.spread_about(walks, E, ref)
+        plane_one = _plane_spread.walk_plane(walks, E)
     finally:
         numba.set_num_threads(threads)
     assert first == one
@@ -168,7 +174,7 @@ def test_too_few_walks_decide_to_measure_a_spread():
     model, _ = _random_model(np.random.default_rng(4413))
     E = plane_geometry(model, 60.0, 1.0)["E"]
     # a threshold that no walk reaches within five steps
-    assert _plane_spread.absorbed_spread(model, 60.0, 5, E, np.zeros(3)) is None
+    assert _spread(model, 60.0, 5, E, np.zeros(3)) is None
 
 
 def _recorded_call(monkeypatch):
