@@ -378,6 +378,9 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
                 # the larger of the spread's and the plane's: both measure the one
                 # linearisation around the reference sums (their sum counted it twice)
                 err = (max(spread[0], plane[0]), max(spread[1], plane[1]))
+                logger.debug("resolution %.3g: the closure's probes changed the answer by "
+                             "%.2g and %.2g (plane), %.2g and %.2g (spread)", k, *plane,
+                             *spread)
                 closure.update(error=err, settled=not first or (
                     err[0] <= RECHECK_SHARE * tolerances[0]
                     and err[1] <= RECHECK_SHARE * tolerances[1]))
