@@ -203,7 +203,7 @@ def plane_runs(model, theta, kappa, max_states, solve, closure, tolerances, chea
         if spread is None or not spread > 0.0:
             return False
         state["ref"], state["delta"] = ref, spread
-        steps = np.where(walks.steps > 0, walks.steps, solve["max_steps"])
+        steps = walks.lengths(solve["max_steps"])
         state["early"] = bool(np.mean(steps > EARLY_KRYLOV_WALK_STEPS) >= EARLY_KRYLOV_SHARE)
         state["ask_first"] = cheaper is not None  # (given only to "propagate": an rt_pmf)
         logger.debug("the walks' reference sums %s and spread %.3g (%d walks)",

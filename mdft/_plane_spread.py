@@ -57,6 +57,10 @@ class Walks:
     last: np.ndarray
     moments: np.ndarray
 
+    def lengths(self, max_steps):
+        """The steps each walk ran: its decision step, or ``max_steps`` undecided."""
+        return np.where(self.steps > 0, self.steps, max_steps)
+
 
 def _trials(args, n, gen):
     """Decision steps (``-1`` undecided), the preferences the step before, and the summed
@@ -82,7 +86,7 @@ def simulate_walks(model, theta, max_steps):
         return None
     gen = np.random.default_rng(SEED)
     steps, last, moments = _trials(args, FIRST_TRIALS, gen)
-    per_trial = float(np.where(steps > 0, steps, max_steps).mean())
+    per_trial = float(Walks(steps, last, moments).lengths(max_steps).mean())
     more = min(MAX_TRIALS - FIRST_TRIALS, int(MAX_WORK / per_trial) - FIRST_TRIALS)
     if more > 0:
         steps2, last2, moments2 = _trials(args, more, gen)
@@ -114,10 +118,11 @@ def walk_plane(walks, E):
     A = np.zeros((3, 4))
     A[0, 0] = 1.0
     A[1:, 1:] = E.T
-    gram = A @ walks.moments @ A.T
+    weighted = A @ walks.moments
+    gram = weighted @ A.T
     if not np.linalg.cond(gram) <= MAX_CONDITION:
         return None
-    return np.linalg.solve(gram, A @ walks.moments @ np.array([0.0, 1.0, 1.0, 1.0]))
+    return np.linalg.solve(gram, weighted @ np.array([0.0, 1.0, 1.0, 1.0]))
 
 
 def spread_about(walks, E, ref):
@@ -132,4 +137,3 @@ def spread_about(walks, E, ref):
     deviation = P.sum(axis=1) - (ref[0] + z @ np.asarray(ref[1:], dtype=np.float64))
     spread = float(np.std(deviation, ddof=1))
     return spread if math.isfinite(spread) else None
-
