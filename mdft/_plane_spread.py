@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _spread_kernels
+from ._control_kernels import symmetric
 from .simulate import _chunk_layout, _reduced_args
 
 #: Trials of the first batch, and at most in all.
@@ -72,8 +73,7 @@ def _trials(args, n, gen):
     moments = np.zeros((bounds.shape[0] - 1, 4, 4))
     _spread_kernels.walks(states, bounds, S, CM, L, cuts, P0, max_steps, theta, out, steps,
                           moments)
-    upper = moments.sum(axis=0)
-    return steps, out, np.triu(upper) + np.triu(upper, 1).T
+    return steps, out, symmetric(moments.sum(axis=0))
 
 
 def simulate_walks(model, theta, max_steps):
@@ -85,15 +85,14 @@ def simulate_walks(model, theta, max_steps):
     if args is None or model.n_options != 3:
         return None
     gen = np.random.default_rng(SEED)
-    steps, last, moments = _trials(args, FIRST_TRIALS, gen)
-    per_trial = float(Walks(steps, last, moments).lengths(max_steps).mean())
+    walks = Walks(*_trials(args, FIRST_TRIALS, gen))
+    per_trial = float(walks.lengths(max_steps).mean())
     more = min(MAX_TRIALS - FIRST_TRIALS, int(MAX_WORK / per_trial) - FIRST_TRIALS)
     if more > 0:
-        steps2, last2, moments2 = _trials(args, more, gen)
-        steps = np.concatenate([steps, steps2])
-        last = np.concatenate([last, last2])
-        moments = moments + moments2
-    return Walks(steps, last, moments)
+        steps, last, moments = _trials(args, more, gen)
+        walks = Walks(np.concatenate([walks.steps, steps]), np.concatenate([walks.last, last]),
+                      walks.moments + moments)
+    return walks
 
 
 def _decided(walks):
