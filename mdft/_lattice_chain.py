@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -28,7 +28,8 @@ MAX_STATES = 300_000
 @dataclass(frozen=True)
 class Chain:
     """An absorbing chain: ``Q`` (transient to transient, CSR), ``R`` (transient to
-    options, dense), and the first step from the exact initial state."""
+    options, dense), and the first step from the exact initial state; or, where ``prefix``
+    holds the choices of steps before (:mod:`mdft._lattice_moving`), the step after them."""
 
     Q: sp.csr_matrix
     R: np.ndarray
@@ -36,6 +37,7 @@ class Chain:
     start_vals: np.ndarray
     start_absorbed: np.ndarray
     n_levels: int
+    prefix: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 # ------------------------------------------------------------------ geometry

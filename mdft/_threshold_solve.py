@@ -48,10 +48,15 @@ def _propagate(chain, max_steps, tol, tail_tol, common):
     x = np.zeros(Q.shape[0])
     np.add.at(x, chain.start_cols, chain.start_vals)
     rt_pmf = np.zeros((max_steps, n))
-    rt_pmf[0] = chain.start_absorbed
+    # the steps before the chain's start (a lattice whose thresholds moved), then the chain's
+    o = chain.prefix.shape[0]
+    if o:
+        rt_pmf[:o] = chain.prefix
+    rt_pmf[o] = chain.start_absorbed
     steps, tail_start, mass = _lattice.propagate(
         Q.indptr.astype(np.int64), Q.indices.astype(np.int64), Q.data,
-        np.ascontiguousarray(chain.R), x, rt_pmf, tol, tail_tol)
+        np.ascontiguousarray(chain.R), x, rt_pmf[o:], tol, tail_tol)
+    steps, tail_start = steps + o, tail_start + o
     probs = rt_pmf.sum(axis=0)
     times = np.arange(1, max_steps + 1, dtype=np.float64)
     return ThresholdProbabilities(
@@ -106,7 +111,10 @@ def _solve(chain, tol, max_iter, common):
                 f"on {n_states} states; raise max_iter or tol, or use method='propagate'"
             )
     R = chain.R
-    probs = chain.start_absorbed + R.T @ y
+    # the choices of the steps before the chain's start (at step o + 1), if any
+    o = chain.prefix.shape[0]
+    before = chain.prefix.sum(axis=0) if o else 0.0
+    probs = before + chain.start_absorbed + R.T @ y
     # every walk decides in the long run, so the choices sum to one: what they miss (the
     # rounding of a system near singular, where walks almost never decide, and any mass the
     # lattice's rows lose, summed over a long deliberation) is an error of this answer
@@ -119,7 +127,10 @@ def _solve(chain, tol, max_iter, common):
             "almost never decide and the linear system is too close to singular; use "
             "method='propagate' with a step limit (max_steps)"
         )
-    weighted = chain.start_absorbed + R.T @ (y + y2)
+    # a choice k steps after the start is made at step o + 1 + k
+    weighted = (o + 1) * (chain.start_absorbed + R.T @ y) + R.T @ y2
+    if o:
+        weighted = weighted + np.arange(1, o + 1) @ chain.prefix
     return ThresholdProbabilities(
         probabilities=probs, p_undecided=0.0, rt_pmf=None,
         mean_response_times=mean_rt(weighted, probs), max_steps=None, method="solve",

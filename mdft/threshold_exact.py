@@ -24,6 +24,7 @@ from functools import partial
 import numpy as np
 
 from ._lattice_chain import UnboundedSum, build_chain, chain_sum_bounds, sum_is_constant
+from ._lattice_moving import MAX_MOVING_STEPS, build_moving_chain, moving_sum_steps
 from ._plane_chain import TooManyStates
 from ._plane_passes import HALF_STEP, KAPPA, REFINE, narrow_everywhere, plane_runs
 from ._threshold_bound import (decision_bound, tolerance_level, undecided_answer,
@@ -250,7 +251,11 @@ def threshold_probabilities(model, theta, *, max_steps=10_000, atol=1e-3, rt_rto
     Every valence ``C (M W + eps)`` sums to zero, so only the feedback ``S``
     moves the summed preference ``s = 1^T P``, deterministically. The chain's
     states are grid cells of the zero-sum plane (one axis for two options,
-    two for three). When ``S`` moves ``s``, the two-option lattice adds levels
+    two for three). When ``S`` moves ``s`` alike on every walk (two options,
+    rows and columns of ``S`` summing alike, as the parametric ``S`` does, and
+    a start ``P0`` that does not sum to zero), only the two-option lattice's
+    thresholds move, and it steps them with the sum, cutting the cells they
+    fall in; when ``s`` depends on the walk, the two-option lattice adds levels
     of ``s``; the three-option chain instead carries, on every cell, the
     probability and the first two moments of ``s`` there, and applies each
     state's transition linearised around a reference sum fitted by a pilot
@@ -783,10 +788,14 @@ def _step_sd_binary(model):
 def _binary_runs(model, theta, n_cells, max_states, solve):
     """Computations of increasing resolution for two options."""
     sd = _step_sd_binary(model)
+    # a sum that moves alike on every walk moves only the thresholds: no levels (section 3)
+    n_moving = moving_sum_steps(model, theta)
+    moving = n_moving is not None and (solve["method"] == "propagate"
+                                       or n_moving <= MAX_MOVING_STEPS)
     if n_cells is None:
         fine = max(_BINARY_MIN_CELLS, int(math.ceil(theta / (_BINARY_SPACING * sd))))
         sizes = [max(4, fine // 2), fine, 2 * fine, 4 * fine]
-        if not sum_is_constant(np.asarray(model.S), float(np.sum(model.P0))):
+        if not moving and not sum_is_constant(np.asarray(model.S), float(np.sum(model.P0))):
             # where the sum moves, the lattice's levels make its coarsest answers erratic
             # (one came within 0.1 % of the next, both 0.4 % off): the first comparison is
             # between the default number of cells and twice that
@@ -797,7 +806,11 @@ def _binary_runs(model, theta, n_cells, max_states, solve):
 
     def make(cells):
         def compute():
-            chain = build_chain(model, theta, cells, True)
+            if moving:
+                steps = solve["max_steps"] if solve["method"] == "propagate" else None
+                chain = build_moving_chain(model, theta, cells, True, steps, solve["tol"])
+            else:
+                chain = build_chain(model, theta, cells, True)
             if chain.Q.shape[0] > max_states:
                 raise TooManyStates(f"n_cells={cells} gives {chain.Q.shape[0]} states")
             spec = dict(engine="lattice", n_cells=cells, resolution=spacing / sd)

@@ -169,12 +169,19 @@ DRIFTING_SUM = dict(M=[[2.74829, 1.22471, 1.42913], [1.21077, 1.80356, 1.71555]]
                     beta=4.304894, sigma2=0.358692, P0=[-2.997064, -0.914327])
 
 
-def test_binary_lattice_with_a_moving_sum_does_not_depend_on_where_the_thresholds_fall():
+def levels_only(monkeypatch):
+    """Make the two-option lattice carry levels of the sum even where the sum moves alike on
+    every walk (where the lattice with moving thresholds would answer)."""
+    monkeypatch.setattr(mdft.threshold_exact, "moving_sum_steps", lambda model, theta: None)
+
+
+def test_binary_lattice_with_levels_does_not_depend_on_where_the_thresholds_fall(monkeypatch):
     # With levels of the sum, the lattice's cells had edges on the thresholds of the lowest
     # level only, and where the walks settle (sum 0) a threshold fell anywhere within a cell:
     # n_cells 56, 60, 80 and 90 gave 0.6031, 0.5837, 0.5975 and 0.5931 for option 0, and 40
     # and 80 agreed, so the call answered 0.5975 with an estimate of 8e-4 (10^6 simulated
     # trials: 0.5918, se 0.0005). The edges now lie on the thresholds of the settled sum.
+    levels_only(monkeypatch)
     model = MDFTModel(**DRIFTING_SUM)
     assert np.ptp(model.S.sum(axis=0)) < 1e-12 and abs(sum(DRIFTING_SUM["P0"])) > 3
     answers = [threshold_probabilities(model, 35.5567, n_cells=cells, atol=0.5, rt_rtol=0.5)
@@ -185,13 +192,101 @@ def test_binary_lattice_with_a_moving_sum_does_not_depend_on_where_the_threshold
     assert abs(p.mean() - 0.5918) < 0.0025, p
 
 
+def test_binary_lattice_with_moving_thresholds_converges_to_the_lattice_with_levels(
+        monkeypatch):
+    # The same model on the lattice whose thresholds move with the sum (no levels): every
+    # cell count gives the same answer to 4e-4, converging from above (0.59321, 0.59301,
+    # 0.59291 and 0.59284 at 40, 56, 80 and 160 cells), and the call agrees with the lattice
+    # with levels of the sum, a discretisation of its own, within both estimates.
+    model = MDFTModel(**DRIFTING_SUM)
+    answers = [threshold_probabilities(model, 35.5567, n_cells=cells, atol=0.5, rt_rtol=0.5)
+               for cells in (40, 56, 60, 80, 90)]
+    assert all(res.engine == "lattice" and res.n_levels == 1 for res in answers)
+    p = np.array([res.probabilities[0] for res in answers])
+    assert np.ptp(p) < 4e-4 and np.all(np.diff(p) < 0), p
+    moving = threshold_probabilities(model, 35.5567)
+    levels_only(monkeypatch)
+    levels = threshold_probabilities(model, 35.5567)
+    assert levels.n_levels > 1
+    room = moving.error_probabilities + levels.error_probabilities
+    np.testing.assert_allclose(moving.probabilities, levels.probabilities, atol=room)
+    assert abs(moving.p_undecided - levels.p_undecided) <= room
+    np.testing.assert_allclose(moving.mean_response_times[0], levels.mean_response_times[0],
+                               rtol=moving.error_mean_rt + levels.error_mean_rt)
+
+
 # a shorter deliberation whose sum moves (P0 sums to -6)
 SHORT_DRIFTING_SUM = dict(M=[[1.0, 3.0], [3.0, 1.2]], w=[0.55, 0.45], phi1=0.03, phi2=0.05,
                           beta=5.0, sigma2=1.0, P0=[-4.0, -2.0])
 
 
-def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
+def uneven_sums(params):
+    """The model of ``params`` with a feedback matrix whose column sums differ by 0.01, so
+    that the summed preference depends on the walk (the lattice then carries levels)."""
+    model = MDFTModel(**params)
+    S = np.array(model.S)
+    S[0, 0] -= 0.01
+    return MDFTModel.from_matrices(params["M"], params["w"], S=S, sigma2=params["sigma2"],
+                                   P0=params["P0"])
+
+
+@pytest.mark.parametrize("seed", [15, 16])
+def test_binary_lattice_with_moving_thresholds_agrees_with_simulation(seed):
     model = MDFTModel(**SHORT_DRIFTING_SUM)
+    res = threshold_probabilities(model, 10.0)
+    assert res.engine == "lattice" and res.n_levels == 1
+    assert_within_stated_error(res, model, 10.0, 200_000, seed)
+    # without a step limit: the steps while the sum moves, then the settled chain solved
+    solved = threshold_probabilities(model, 10.0, method="solve")
+    np.testing.assert_allclose(solved.probabilities, res.probabilities, atol=1e-9)
+    np.testing.assert_allclose(solved.mean_response_times, res.mean_response_times, rtol=1e-6)
+
+
+# a model of the random draws (seed 11, model 23, of scratch mvcmp.py) whose start sums to 2
+CUT_START = dict(M=[[2.18962, 2.98139], [3.77633, 3.46553]], w=[0.501272, 0.498728],
+                 phi1=0.0549674, phi2=0.0183468, beta=7.31551, sigma2=0.671499, P0=[2.0, 0.0])
+
+
+def test_binary_lattice_cuts_the_cells_its_moving_thresholds_fall_in():
+    # A start summing to 2 moves the thresholds inwards by up to 1.4 in z, within the cells
+    # next to the settled thresholds. Where such a cell kept the whole of every step landing
+    # in it (as the lattice with levels does), the mean time ran erratically, 1.1 % short at
+    # 28 cells and still 0.2 % at 80 (102.47, 102.56, 102.83, 103.36 and 103.58 steps at 28,
+    # 40, 55, 80 and 110 cells). Cut to the part inside the thresholds, with its mass at the
+    # middle of that part, every cell count is within 0.03 % of 440 cells', as with a start
+    # summing to zero.
+    model = MDFTModel(**CUT_START)
+    theta = 49.4861
+
+    def mean_time(cells):
+        res = threshold_probabilities(model, theta, n_cells=cells, atol=0.5, rt_rtol=0.5)
+        assert res.engine == "lattice" and res.n_levels == 1
+        return res.mean_response_times[1]
+
+    fine = mean_time(440)
+    coarse = np.array([mean_time(cells) for cells in (28, 40, 55, 80, 110)])
+    assert np.all(np.abs(coarse / fine - 1.0) < 3e-4), (coarse, fine)
+    # and the call's own answer is within its estimate of the finest lattice
+    res = threshold_probabilities(model, theta)
+    assert abs(res.mean_response_times[1] / fine - 1.0) <= res.error_mean_rt
+
+
+def test_binary_lattice_with_moving_thresholds_within_a_short_step_limit():
+    # a step limit within the steps while the sum moves: the answer is the stepped part alone
+    for steps in (3, 20):
+        model = MDFTModel(**SHORT_DRIFTING_SUM)
+        res = threshold_probabilities(model, 10.0, max_steps=steps)
+        assert res.engine == "lattice" and res.rt_pmf.shape == (steps, 2)
+        assert abs(res.probabilities.sum() + res.p_undecided - 1.0) < 1e-9
+        sim = mdft.simulate(model, 200_000, stopping=mdft.Threshold(10.0, max_steps=steps),
+                            rng=steps)
+        gap = np.abs(np.append(res.probabilities, res.p_undecided)
+                     - np.append(sim.probabilities, sim.p_undecided))
+        assert np.all(gap < 4 * math.sqrt(0.25 / 200_000) + res.error_probabilities), gap
+
+
+def test_binary_lattice_with_levels_of_a_sum_that_depends_on_the_walk_agrees_with_simulation():
+    model = uneven_sums(SHORT_DRIFTING_SUM)
     res = threshold_probabilities(model, 10.0)
     assert res.engine == "lattice" and res.n_levels > 1
     assert_within_stated_error(res, model, 10.0, 200_000, 15)
@@ -200,7 +295,7 @@ def test_binary_lattice_with_a_moving_sum_agrees_with_simulation():
 def test_a_lattice_over_its_state_limit_falls_back_or_refuses():
     # levels of a moving sum times 2,000 cells: far over the lattice's limit, which the
     # default fallback answers by simulation and fallback="raise" names
-    model = MDFTModel(**SHORT_DRIFTING_SUM)
+    model = uneven_sums(SHORT_DRIFTING_SUM)
     res = threshold_probabilities(model, 10.0, n_cells=2000, atol=0.004, rt_rtol=0.01)
     assert res.engine == "simulation"
     with pytest.raises(ValueError, match=r"n_cells=\d+ gives about \d+ lattice states \(the "
@@ -208,10 +303,18 @@ def test_a_lattice_over_its_state_limit_falls_back_or_refuses():
         threshold_probabilities(model, 10.0, n_cells=2000, fallback="raise")
 
 
-def test_a_start_far_below_a_small_threshold_is_refused_before_any_lattice_is_stored():
-    # the lattice's box spans the start: 520 / (1e-9 / 40) cells would need 151 TiB
+def test_a_start_far_below_a_small_threshold_is_refused_before_any_lattice_is_stored(
+        monkeypatch):
+    # the lattice's box spans the start: 520 / (1e-9 / 40) cells would need 151 TiB, with
+    # levels of the sum or with moving thresholds
     model = MDFTModel([[1.0, 3.0], [3.0, 1.0]], [0.5, 0.5], phi1=0.05, phi2=0.05, beta=10.0,
                       P0=[-500.0, -20.0])
+    for theta in (1e-9, 1.0):
+        with pytest.raises(ValueError, match=r"gives about \d+ lattice cells whose spreads "
+                                             r"hold about [\d.e+]+ entries"):
+            threshold_probabilities(model, theta, max_steps=5, fallback="raise")
+    assert threshold_probabilities(model, 1.0, max_steps=5).engine == "simulation"
+    levels_only(monkeypatch)
     for theta in (1e-9, 1.0):
         with pytest.raises(ValueError, match=r"gives about \d+ lattice states \(the "
                                              r"lattice's limit is 300000\)"):
