@@ -18,11 +18,16 @@ targets (the median, the calls of at most 0.2 s and of more than 2 s, the larges
     python benchmarks/bench_threshold_exact.py --ternary 40 --binary 0 --trials 0 --seed 8383
     python benchmarks/bench_threshold_exact.py --canonical --ternary 0 --binary 0 --max-steps 10000
     python benchmarks/bench_threshold_exact.py --edge-correction --fallback simulation --binary 0
+    python benchmarks/bench_threshold_exact.py --ternary 0 --binary 30 --start 0.4 --max-steps 10000
 
 ``--canonical`` adds the three context-effect option sets of ``mdft.effects``
 (similarity, attraction, compromise) at the canonical parameters (``w = (.5, .5)``,
 ``phi1 = .022``, ``phi2 = .05``, ``beta = 12``, ``sigma2 = 1``, ``theta = 17.5``), and the
 compromise set at ``theta`` 12 and 60 and at ``sigma2`` 0.1 and 0.05.
+
+``--start S`` starts the two-option draws away from 0: each entry of ``P0`` uniform within
+``+-S theta`` (drawn from a stream of its own, so the models are those of ``--start 0``). A
+start that does not sum to zero moves the summed preference, and with it the thresholds.
 
 ``--live`` adds a second, screened set of three-option models: draws (from
 another seed) whose simulation leaves more than half the trials undecided
@@ -297,6 +302,9 @@ def main(argv=None):
     parser.add_argument("--canonical", action="store_true",
                         help="also the context-effect sets at the canonical parameters (see "
                              "the module docstring)")
+    parser.add_argument("--start", type=float, default=0.0,
+                        help="two options: each entry of P0 uniform within +-START theta "
+                             "(default 0: P0 = 0)")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads of the chain (default: numba's, one per core)")
     args = parser.parse_args(argv)
@@ -304,6 +312,8 @@ def main(argv=None):
         parser.error(f"--trials must be at least 0, got {args.trials}")
     if args.trials == 0 and args.live:
         parser.error("--live screens the draws by simulation: it needs --trials > 0")
+    if not 0.0 <= args.start < 1.0:
+        parser.error(f"--start must be in [0, 1), got {args.start}")
     if args.threads is not None:
         if args.threads < 1:
             parser.error(f"--threads must be at least 1, got {args.threads}")
@@ -317,6 +327,12 @@ def main(argv=None):
     ternary = [(*draw_model(rng, 3, args.ranges), args.seed + k) for k in range(args.ternary)]
     binary = [(*draw_model(rng, 2, args.ranges), args.seed + args.ternary + k)
               for k in range(args.binary)]
+    if args.start > 0.0:
+        starts = np.random.default_rng([args.seed, 2])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+            binary = [(model.replace(P0=starts.uniform(-args.start, args.start, 2) * theta),
+                       theta, seed) for model, theta, seed in binary]
     if args.canonical:
         models, labels = canonical_models(args.seed)
         print("\ncanonical sets: " + "; ".join(labels))

@@ -242,6 +242,14 @@ def test_benchmark_refuses_fewer_than_one_thread_and_unknown_ranges(capsys):
     with pytest.raises(SystemExit):
         bench.main(["--trials", "0", "--live", "--ternary", "0", "--binary", "0"])
     assert "--live screens the draws by simulation" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["--start", "1.5", "--ternary", "0", "--binary", "0"])
+    assert "--start must be in [0, 1), got 1.5" in capsys.readouterr().err
+    # --start: the two-option draws start away from 0 (and are answered, here on the lattice
+    # whose thresholds move)
+    bench.main(["--trials", "0", "--ternary", "0", "--binary", "2", "--seed", "3",
+                "--start", "0.4", "--max-steps", "500"])
+    assert "2 options: 2 models answered" in capsys.readouterr().out
     # --trials 0 times the calls alone: a line per model and the summary, no reference
     bench.main(["--trials", "0", "--ternary", "1", "--binary", "1", "--seed", "3",
                 "--max-steps", "500"])
