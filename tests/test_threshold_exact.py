@@ -162,6 +162,21 @@ def test_random_binary_models_agree_with_simulation(seed):
     assert_matches_simulation(res, model, theta, 50_000, seed)
 
 
+@pytest.mark.parametrize("seed", [31, 32, 33, 34, 35, 36])
+def test_random_binary_models_with_a_moving_start_agree_with_simulation(seed):
+    # random models across the documented range, each entry of the start uniform within
+    # +-0.4 theta: the lattice with moving thresholds against the Monte Carlo engine
+    rng = np.random.default_rng(seed)
+    model, theta = random_model(rng, 2, theta_range=(5.0, 40.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", mdft.UnstableFeedbackWarning)
+        model = model.replace(P0=rng.uniform(-0.4, 0.4, 2) * theta)
+    res = threshold_probabilities(model, theta)
+    assert res.engine in ("lattice", "bound") and res.n_levels == 1
+    if res.engine == "lattice":
+        assert_within_stated_error(res, model, theta, 100_000, seed)
+
+
 # a two-option model whose summed preference moves (P0 sums to -3.9 and decays by 0.974 per
 # step) and which decides by rare excursions: 40 % undecided after 10,000 steps
 DRIFTING_SUM = dict(M=[[2.74829, 1.22471, 1.42913], [1.21077, 1.80356, 1.71555]],
