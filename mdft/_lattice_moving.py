@@ -58,14 +58,14 @@ def moving_sum_steps(model, theta):
     return max(1, int(math.ceil(math.log(SETTLED * theta / abs(s0)) / math.log(c))))
 
 
-def build_moving_chain(model, theta, n_cells, variance_correction, max_steps=None, tol=0.0):
-    """The lattice of ``n_cells`` cells per ``theta`` for a sum that moves on its own
-    (:func:`moving_sum_steps`), stepped while the sum moves (at most ``max_steps`` steps in
-    all, fewer once the undecided mass is below ``tol``): a
+def build_moving_chain(model, theta, n_cells, variance_correction, n_moving, max_steps=None,
+                       tol=0.0):
+    """The lattice of ``n_cells`` cells per ``theta`` for a sum that moves on its own,
+    settling in ``n_moving`` steps (:func:`moving_sum_steps`), stepped while it moves (at
+    most ``max_steps`` steps in all, fewer once the undecided mass is below ``tol``): a
     :class:`mdft._lattice_chain.Chain` of the settled sum whose start is the state after
     those steps and whose ``prefix`` holds the choices of the steps before. Raises
     :class:`mdft._lattice_chain.TooManyStates` where the lattice would be too large."""
-    n_moving = moving_sum_steps(model, theta)
     S = np.ascontiguousarray(model.S, dtype=np.float64)
     C = np.asarray(model.C)
     E = _basis(model)
@@ -112,7 +112,7 @@ def build_moving_chain(model, theta, n_cells, variance_correction, max_steps=Non
                             max_count + 2)
     x = np.zeros(n_total)
     rt = np.zeros((n_prefix, 2))
-    reg = kernels.region(edges, math.sqrt(2.0) * (theta - 0.5 * sums[1]))
+    reg = kernels.region_at(edges, theta, sums[1])
     kernels.add_row(z0, sums[0], sums[1], 1.0, 0, *start, sd_cell, slope, shift, S, CM, w, theta,
                     edges, reg, sd_opt, x, rt[0])
     done = kernels.run_steps(x, sums, *lattice, rt, tol)

@@ -84,6 +84,12 @@ def region(edges, bound):
     return lo, hi, lo_lo, lo_hi, hi_lo, hi_hi
 
 
+@njit
+def region_at(edges, theta, s):
+    """:func:`region` of the thresholds at sum ``s``, ``|z| < sqrt(2) (theta - s / 2)``."""
+    return region(edges, math.sqrt(2.0) * (theta - 0.5 * s))
+
+
 @njit_inline
 def _is_cut(edges, b, part_lo, part_hi):
     """Whether the inside part ``[part_lo, part_hi]`` of cell ``b`` is less than the cell."""
@@ -213,25 +219,29 @@ def run_steps(x, sums, centres, spreads_, sd_cell, sd_axis, correct, width, slop
     n_steps = rt_pmf.shape[0]
     y = np.zeros(n_cells)
     absorbed = np.zeros(2)
+    mass = 0.0
+    for a in range(n_cells):
+        mass += x[a]
+    # each step's target region is the next step's source region
+    reg = region_at(edges, theta, sums[1])
     for t in range(1, n_steps):
-        mass = 0.0
-        for a in range(n_cells):
-            mass += x[a]
         if mass < tol:
             return t
         absorbed[0] = 0.0
         absorbed[1] = 0.0
-        reg_src = region(edges, math.sqrt(2.0) * (theta - 0.5 * sums[t]))
-        reg = region(edges, math.sqrt(2.0) * (theta - 0.5 * sums[t + 1]))
+        reg_src = reg
+        reg = region_at(edges, theta, sums[t + 1])
         for b in range(n_cells):
             if x[b] == 0.0:
                 continue
             add_source(b, x[b], sums[t], sums[t + 1], reg_src, reg, centres, spreads_, sd_cell,
                        sd_axis, correct, width, slope, shift, S, CM, w, theta, edges, sd_opt,
                        y, absorbed)
+        mass = 0.0
         for a in range(n_cells):
             x[a] = y[a]
             y[a] = 0.0
+            mass += x[a]
         rt_pmf[t, 0] = absorbed[0]
         rt_pmf[t, 1] = absorbed[1]
     return n_steps
@@ -243,7 +253,7 @@ def settled_rows(s, centres, spreads_, sd_cell, sd_axis, correct, width, slope, 
     """The fixed chain once the sum has settled at ``s``: the rows of the cells of its
     region ``[lo, hi)`` (state ``b - lo``) in CSR ``(indptr, cols, vals)``, and their
     choices ``(hi - lo, 2)``."""
-    reg = region(edges, math.sqrt(2.0) * (theta - 0.5 * s))
+    reg = region_at(edges, theta, s)
     lo = reg[0]
     n_states = max(reg[1] - lo, 0)
     y = np.zeros(centres.shape[0])

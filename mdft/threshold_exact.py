@@ -808,7 +808,8 @@ def _binary_runs(model, theta, n_cells, max_states, solve):
         def compute():
             if moving:
                 steps = solve["max_steps"] if solve["method"] == "propagate" else None
-                chain = build_moving_chain(model, theta, cells, True, steps, solve["tol"])
+                chain = build_moving_chain(model, theta, cells, True, n_moving, steps,
+                                           solve["tol"])
             else:
                 chain = build_chain(model, theta, cells, True)
             if chain.Q.shape[0] > max_states:
